@@ -57,7 +57,7 @@ typecheck: setup
 	$(PY) -m mypy
 
 unit: setup
-	$(PY) -m pytest -m "not slow" $(PYTEST_ARGS)
+	$(PY) -m pytest -n 2 $(PYTEST_ARGS)
 
 test: setup lint typecheck unit
 
@@ -65,7 +65,7 @@ bench: setup
 	$(PY) -m terrain_estimation.tools.bench
 
 reproduce: setup
-	$(PY) -m pytest -m slow $(PYTEST_ARGS)
+	$(PY) -m pytest -m slow -p no:xdist $(PYTEST_ARGS)
 
 constraints: setup
 	{ head -n 3 constraints.txt; $(PIP) freeze | grep -v -E '^(-e |terrain|vehicle)'; } > constraints.txt.new

@@ -239,7 +239,7 @@ class EstimatorNode(_ParamsMixin, Node):
         self._make_adapter = make_adapter
         self.adapter = make_adapter(self.values, self.get_namespace())
         self.messages_handled = 0
-        self._publishers = {
+        self._output_publishers = {
             o.key: self.create_publisher(o.msg_type, o.topic, qos_for(o.kind)) for o in self.adapter.outputs
         }
         for spec in self.adapter.inputs:
@@ -256,7 +256,7 @@ class EstimatorNode(_ParamsMixin, Node):
     def _callback_for(self, key: str) -> Callable[[Any], None]:
         def callback(msg: Any) -> None:
             for out_key, out_msg in self.adapter.handle(key, msg):
-                self._publishers[out_key].publish(out_msg)
+                self._output_publishers[out_key].publish(out_msg)
             self.messages_handled += 1
 
         return callback
@@ -366,7 +366,7 @@ class SimulatorNode(_ParamsMixin, Node):
         self._specs = {s.name: s for s in all_specs}
         self.values = declare_specs(self, all_specs)
         self.adapter = make_adapter(self.values, self.get_namespace())
-        self._publishers = {
+        self._output_publishers = {
             o.key: self.create_publisher(o.msg_type, o.topic, qos_for(o.kind)) for o in self.adapter.outputs
         }
         self._clock_pub = (
@@ -391,7 +391,7 @@ class SimulatorNode(_ParamsMixin, Node):
         if self._clock_pub is not None:
             self._clock_pub.publish(Clock(clock=sec_to_stamp(t)))
         for key, msg in messages:
-            self._publishers[key].publish(msg)
+            self._output_publishers[key].publish(msg)
 
     def _tick(self) -> None:
         for _ in range(self._steps_per_tick):
