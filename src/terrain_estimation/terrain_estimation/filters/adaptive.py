@@ -1,0 +1,308 @@
+"""Building blocks of the adaptive (AN-)STUKF: strong tracking and noise adaptation.
+
+Pure functions over arrays and filter states; the skid-steer AN-STUKF
+composes them around an :class:`~terrain_estimation.filters.ukf.UnscentedKalmanFilter`
+(AN-STUKF = UKF + strong tracking + noise adaptation, MODELS.md B.8–B.10)::
+
+    noise = adapt_noise_sqrt(Q0_sqrt, R0_sqrt, slip_angles, k_q=..., k_r=...)     # B.10
+    st = strong_tracking_predict(ukf, state, model, u, dt, z, V_prev=V,
+                                 process_noise_sqrt=noise.process_noise_sqrt,
+                                 measurement_noise_sqrt=noise.measurement_noise_sqrt)  # B.9
+    state, info = ukf.update(st.state, z, model, u,
+                             measurement_noise_sqrt=noise.measurement_noise_sqrt)
+    V = st.V
+
+Sources: Zhou & Frank, *Fault diagnosis and fault tolerant control*, 1996
+(strong tracking filter, suboptimal fading factor), as reconstructed in
+MODELS.md B.9; the noise law is the reconstruction of MODELS.md B.10.
+"""
+
+# ruff: noqa: N803, N806 - matrix symbols (P, S, Q, R, W, ...) of the papers
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .base import Array, GaussianState, StateSpaceModel
+from .kalman import check_measurement
+from .ukf import SigmaPointKalmanFilter
+
+__all__ = [
+    "StrongTrackingConfig",
+    "StrongTrackingPrediction",
+    "NoiseAdaptation",
+    "innovation_is_consistent",
+    "suboptimal_fading_factor",
+    "strong_tracking_predict",
+    "adapt_noise_sqrt",
+]
+
+
+@dataclass(frozen=True, kw_only=True)
+class StrongTrackingConfig:
+    """Parameters of the suboptimal fading factor (MODELS.md B.9).
+
+    Args:
+        rho: forgetting factor ``ρ`` of the innovation-covariance estimate,
+            ``0 < ρ ≤ 1`` (the paper calls it β; renamed to avoid the UKF β).
+        beta_w: weakening factor ``β_w ≥ 1``; larger values make the fading
+            factor less eager (smoother, less tracking).
+        gamma_th: activation threshold ``γ_th ≥ 1``: the filter counts as
+            consistent, ``λ = 1``, while ``eᵀe ≤ γ_th tr(P_zz)``. ``None``
+            computes the fading factor at every step (plain Zhou–Frank).
+        lambda_max: cap on ``λ`` (≥ 1); bounds the covariance inflation one
+            outlier can cause.
+        simplified: use ``N = V − β_w R``, ``M = P_zz − R`` (the variant common
+            in STUKF code) instead of removing ``H̃ Q H̃ᵀ`` as well.
+    """
+
+    rho: float = 0.95
+    beta_w: float = 1.0
+    gamma_th: float | None = 3.0
+    lambda_max: float = 10.0
+    simplified: bool = False
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.rho <= 1.0):
+            raise ValueError(f"rho must be in (0, 1], got {self.rho}")
+        if not (math.isfinite(self.beta_w) and self.beta_w >= 1.0):
+            raise ValueError(f"beta_w must be finite and >= 1, got {self.beta_w}")
+        if self.gamma_th is not None and not (math.isfinite(self.gamma_th) and self.gamma_th >= 1.0):
+            raise ValueError(f"gamma_th must be None or finite and >= 1, got {self.gamma_th}")
+        if not (math.isfinite(self.lambda_max) and self.lambda_max >= 1.0):
+            raise ValueError(f"lambda_max must be finite and >= 1, got {self.lambda_max}")
+
+
+def innovation_is_consistent(innovation: Array, P_zz: Array, gamma_th: float) -> bool:
+    """Activation test of MODELS.md B.9: ``eᵀe ≤ γ_th · tr(P_zz)``.
+
+    Args:
+        innovation: ``e = z − ẑ`` ``(p,)``.
+        P_zz: predicted innovation covariance ``(p, p)``.
+        gamma_th: threshold coefficient ``γ_th ≥ 1``.
+
+    Returns:
+        True while the innovation is as large as the filter expects it to be
+        (no fading needed).
+    """
+    e = np.asarray(innovation, dtype=float)
+    return bool(e @ e <= gamma_th * float(np.trace(P_zz)))
+
+
+def suboptimal_fading_factor(
+    innovation: Array,
+    P_zz: Array,
+    P_xz: Array,
+    P_pred: Array,
+    R: Array,
+    Q: Array,
+    V_prev: Array | None,
+    config: StrongTrackingConfig | None = None,
+) -> tuple[float, Array]:
+    """Suboptimal fading factor ``λ_k ≥ 1`` (Zhou–Frank 1996; MODELS.md B.9).
+
+    Equations (``e_k = z_k − ẑ_k``)::
+
+        V_1 = e_1 e_1ᵀ;   V_k = (ρ V_{k−1} + e_k e_kᵀ) / (1 + ρ)
+        H̃   = P_xzᵀ P̄⁻¹                    (statistical linearisation of h)
+        N_k = V_k − β_w R_k − H̃ Q_k H̃ᵀ
+        M_k = P_zz − R_k − H̃ Q_k H̃ᵀ        (≈ H F P Fᵀ Hᵀ)
+        c_k = tr(N_k) / tr(M_k);   λ_k = min(max(1, c_k), λ_max)
+
+    ``λ_k = 1`` when the activation test :func:`innovation_is_consistent`
+    passes, when ``tr(M_k) ≤ 0`` (the propagated spread carries no
+    information to rescale) or when ``c_k`` is not finite. ``V_k`` is updated
+    at every step, active or not: it is a running estimate of the innovation
+    covariance and would go stale if it were frozen while the filter is
+    consistent.
+
+    Args:
+        innovation: ``e_k`` ``(p,)``.
+        P_zz: predicted innovation covariance (with ``R``) ``(p, p)``.
+        P_xz: predicted state–measurement cross covariance ``(n, p)``.
+        P_pred: predicted covariance ``P̄ = P̄0 + Q_k`` the points were drawn
+            from ``(n, n)``.
+        R: measurement noise covariance ``(p, p)``.
+        Q: process noise covariance of the step ``(n, n)``.
+        V_prev: previous ``V_{k−1}`` ``(p, p)``, or ``None`` at the first step.
+        config: ``ρ, β_w, γ_th, λ_max`` and the variant; defaults of B.9.
+
+    Returns:
+        ``(λ_k, V_k)``.
+    """
+    cfg = config if config is not None else StrongTrackingConfig()
+    e = np.asarray(innovation, dtype=float)
+    ee = np.outer(e, e)
+    V = ee if V_prev is None else (cfg.rho * np.asarray(V_prev, dtype=float) + ee) / (1.0 + cfg.rho)
+    if cfg.gamma_th is not None and innovation_is_consistent(e, P_zz, cfg.gamma_th):
+        return 1.0, V
+    N = V - cfg.beta_w * R
+    M = P_zz - R
+    if not cfg.simplified:
+        try:
+            H_t = np.linalg.solve(P_pred, P_xz)  # H̃ᵀ = P̄⁻¹ P_xz (P̄ symmetric)
+        except np.linalg.LinAlgError:
+            # P̄ singular: the least-squares H̃ is the natural linearisation on its range.
+            H_t = np.linalg.lstsq(P_pred, P_xz, rcond=None)[0]
+        HQH = H_t.T @ Q @ H_t
+        N = N - HQH
+        M = M - HQH
+    tr_m = float(np.trace(M))
+    if not tr_m > 0.0:
+        return 1.0, V
+    c = float(np.trace(N)) / tr_m
+    if not math.isfinite(c):
+        return 1.0, V
+    return min(max(1.0, c), cfg.lambda_max), V
+
+
+@dataclass(frozen=True)
+class StrongTrackingPrediction:
+    """Result of :func:`strong_tracking_predict`.
+
+    Attributes:
+        state: predicted state with ``P̄ = λ P̄0 + Q_k`` (update it next with
+            the same filter, measurement and noise).
+        fading_factor: ``λ_k ≥ 1`` (publish as ``fading_factor``, B.9).
+        V: innovation-covariance estimate ``V_k`` ``(p, p)``; pass it back as
+            ``V_prev`` at the next step.
+        innovation: ``e_k = z − ẑ`` at the unscaled prediction ``(p,)``.
+    """
+
+    state: GaussianState
+    fading_factor: float
+    V: Array
+    innovation: Array
+
+
+def strong_tracking_predict(
+    filt: SigmaPointKalmanFilter,
+    state: GaussianState,
+    model: StateSpaceModel,
+    u: Any,
+    dt: float,
+    z: Any,
+    *,
+    V_prev: Array | None = None,
+    config: StrongTrackingConfig | None = None,
+    process_noise_sqrt: Any = None,
+    measurement_noise_sqrt: Any = None,
+) -> StrongTrackingPrediction:
+    """Strong-tracking time update for a full-covariance sigma-point filter (B.9).
+
+    1. ``x̄, P̄0, Q_k`` from ``filt.propagate`` (UKF prediction, B.8).
+    2. ``ẑ, P_zz, P_xz`` from points drawn at ``(x̄, P̄0 + Q_k)``; ``e = z − ẑ``.
+    3. ``λ_k`` by :func:`suboptimal_fading_factor`.
+    4. ``P̄ ← λ_k P̄0 + Q_k``: only the propagated spread is inflated, not the
+       process noise (Zhou–Frank scale ``F P Fᵀ``).
+
+    The caller then runs the normal ``filt.update`` on the returned state,
+    which redraws the points and recomputes ``P_zz, P_xz`` from the inflated
+    covariance, as B.9 prescribes.
+
+    Args:
+        filt: an :class:`~terrain_estimation.filters.ukf.UnscentedKalmanFilter`
+            (or any full-covariance sigma-point filter).
+        state: posterior at step k, ``x`` ``(n,)``, ``P`` ``(n, n)``.
+        model: the model; ``u`` is passed to both ``f`` and ``h``.
+        u: input over the step.
+        dt: step length (s).
+        z: the measurement ``(p,)`` that will be used in the update.
+        V_prev: ``V_{k−1}`` from the previous step, ``None`` at the first.
+        config: strong-tracking parameters (defaults of B.9).
+        process_noise_sqrt: ``(n, q)`` override of ``√Q_k`` (noise adaptation).
+        measurement_noise_sqrt: ``(p, r)`` override of ``√R_k``; pass the same
+            one to the update.
+
+    Returns:
+        The (possibly inflated) prediction, ``λ_k``, ``V_k`` and ``e_k``.
+
+    Raises:
+        ValueError: on wrong shapes, non-finite ``z`` or model outputs.
+    """
+    zv = check_measurement(z, model.measurement_dim)
+    pred = filt.propagate(state, model, u, dt, process_noise_sqrt=process_noise_sqrt)
+    prior = pred.state()
+    mm = filt.measurement_moments(prior, model, u, measurement_noise_sqrt=measurement_noise_sqrt)
+    e = zv - mm.z_hat
+    lam, V = suboptimal_fading_factor(e, mm.P_zz, mm.P_xz, prior.P, mm.R, pred.Q, V_prev, config)
+    out = prior if lam == 1.0 else pred.state(lam)
+    return StrongTrackingPrediction(state=out, fading_factor=lam, V=V, innovation=e)
+
+
+@dataclass(frozen=True)
+class NoiseAdaptation:
+    """Result of :func:`adapt_noise_sqrt`.
+
+    Attributes:
+        process_noise_sqrt: ``√Q_k = √Q0 · √(1 + K_q ᾱ)`` ``(n, q)``.
+        measurement_noise_sqrt: ``√R_k = √R0 / √(1 + K_r ᾱ)`` ``(p, r)``.
+        noise_scale: ``1 + K_q ᾱ`` (publish as ``noise_scale``, B.10).
+        mean_abs_slip: ``ᾱ_k`` (rad).
+    """
+
+    process_noise_sqrt: Array
+    measurement_noise_sqrt: Array
+    noise_scale: float
+    mean_abs_slip: float
+
+
+def adapt_noise_sqrt(
+    q0_sqrt: Any,
+    r0_sqrt: Any,
+    slip_angles: Any,
+    *,
+    k_q: float,
+    k_r: float,
+) -> NoiseAdaptation:
+    """Sideslip-driven noise adaptation (MODELS.md B.10, [SS] eqs. 32–34 reconstructed).
+
+    ::
+
+        ᾱ_k = mean_ij |α_ij(x̄_k, u_k)|       ((1/6) Σ over the six tires, rad)
+        Q_k = Q0 · (1 + K_q ᾱ_k)             (Q grows with the tire-model error)
+        R_k = R0 / (1 + K_r ᾱ_k)             (large manoeuvres: measurements weigh more)
+
+    Applied to factors (``√Q_k = √Q0 √(1 + K_q ᾱ)``) so no covariance is
+    factored. ``K_q = K_r = 0`` returns the base noise (plain UKF/STUKF).
+
+    Args:
+        q0_sqrt: factor of ``Q0`` ``(n, q)``, per step.
+        r0_sqrt: factor of ``R0`` ``(p, r)``.
+        slip_angles: tire sideslip angles ``α_ij`` (rad), any shape, finite,
+            evaluated by the vehicle model at the predicted state.
+        k_q: ``K_q ≥ 0`` (rad⁻¹); B.10 suggests 5.
+        k_r: ``K_r ≥ 0`` (rad⁻¹); B.10 suggests 2.
+
+    Returns:
+        The adapted factors, ``noise_scale`` and ``ᾱ_k``.
+
+    Raises:
+        ValueError: on negative gains, non-finite or empty slip angles, or
+            factors that are not 2-D.
+    """
+    if not (math.isfinite(k_q) and k_q >= 0.0):
+        raise ValueError(f"k_q must be finite and >= 0, got {k_q}")
+    if not (math.isfinite(k_r) and k_r >= 0.0):
+        raise ValueError(f"k_r must be finite and >= 0, got {k_r}")
+    alpha = np.asarray(slip_angles, dtype=float)
+    if alpha.size == 0 or not np.isfinite(alpha).all():
+        raise ValueError("slip_angles must be non-empty and finite")
+    q0 = np.asarray(q0_sqrt, dtype=float)
+    r0 = np.asarray(r0_sqrt, dtype=float)
+    for name, arr in (("q0_sqrt", q0), ("r0_sqrt", r0)):
+        if arr.ndim != 2 or arr.size == 0:
+            raise ValueError(f"{name} must be a non-empty 2-D factor, got shape {arr.shape}")
+    a_bar = float(np.mean(np.abs(alpha)))
+    q_scale = 1.0 + k_q * a_bar
+    r_scale = 1.0 + k_r * a_bar
+    return NoiseAdaptation(
+        process_noise_sqrt=q0 * math.sqrt(q_scale),
+        measurement_noise_sqrt=r0 / math.sqrt(r_scale),
+        noise_scale=q_scale,
+        mean_abs_slip=a_bar,
+    )

@@ -1,0 +1,134 @@
+"""Extended Kalman filter over a :class:`~terrain_estimation.filters.base.JacobianModel`.
+
+MODELS.md A.6 (the baseline of [QC], eqs. A.7–A.9)::
+
+    x̄ = f(x̂, u, dt),           P̄ = F P Fᵀ + Q_k,   F = ∂f/∂x (x̂),   Q_k = L Lᵀ
+    ẑ = h(x̄, u),               H = ∂h/∂x (x̄),      S = H P̄ Hᵀ + R
+    K = P̄ Hᵀ S⁻¹,  x̂ = x̄ + K (z − ẑ),   P = (I − K H) P̄ (I − K H)ᵀ + K R Kᵀ
+
+The paper prints the short form ``P = (I − K H) P̄``; the Joseph form used
+here is algebraically equal for the optimal gain and stays symmetric
+positive semi-definite under rounding.
+"""
+
+# ruff: noqa: N803, N806 - matrix symbols (P, S, Q, R, W, ...) of the papers
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .base import Array, GaussianState, JacobianModel, UpdateInfo, check_square, check_vector
+from .kalman import (
+    check_factor,
+    check_gate_threshold,
+    check_measurement,
+    initial_gaussian,
+    joseph_update,
+    symmetrise,
+)
+
+__all__ = ["ExtendedKalmanFilter"]
+
+
+def _check_output(name: str, value: Any, shape: tuple[int, ...]) -> Array:
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != shape:
+        raise ValueError(f"{name} returned shape {arr.shape}, expected {shape}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} returned non-finite values")
+    return arr
+
+
+@dataclass(frozen=True, kw_only=True)
+class ExtendedKalmanFilter:
+    """First-order EKF with Joseph-form update (MODELS.md A.6).
+
+    Args:
+        gate_threshold: Mahalanobis gate on the NIS (e.g. a χ²_p quantile);
+            ``None`` disables gating. A rejected measurement returns the
+            prior state unchanged with ``accepted=False``.
+    """
+
+    gate_threshold: float | None = None
+
+    def __post_init__(self) -> None:
+        check_gate_threshold(self.gate_threshold)
+
+    def initial_state(self, x0: Any, P0: Any) -> GaussianState:
+        """``GaussianState`` from a finite mean ``(n,)`` and a symmetric ``P0`` ``(n, n)``."""
+        return initial_gaussian(x0, P0)
+
+    def predict(
+        self,
+        state: GaussianState,
+        model: JacobianModel,
+        u: Any,
+        dt: float,
+        *,
+        process_noise_sqrt: Any = None,
+    ) -> GaussianState:
+        """Propagate mean through ``model.f`` and covariance through its Jacobian.
+
+        Args:
+            state: posterior at step k, ``x`` ``(n,)``, ``P`` ``(n, n)``.
+            model: supplies ``f``, ``transition_jacobian`` and ``process_noise_sqrt``.
+            u: input over the step, passed through to the model.
+            dt: step length (s).
+            process_noise_sqrt: ``(n, q)`` factor overriding
+                ``model.process_noise_sqrt(x, u, dt)`` for this step.
+
+        Returns:
+            The predicted state ``(x̄, P̄)``.
+
+        Raises:
+            ValueError: on wrong shapes, or non-finite model outputs.
+        """
+        n = model.state_dim
+        x = check_vector("state.x", state.x, n)
+        P = check_square("state.P", state.P, n)
+        x_new = _check_output("model.f", model.f(x, u, dt), (n,))
+        F = _check_output("model.transition_jacobian", model.transition_jacobian(x, u, dt), (n, n))
+        if process_noise_sqrt is None:
+            L = check_factor("model.process_noise_sqrt", model.process_noise_sqrt(x, u, dt), n)
+        else:
+            L = check_factor("process_noise_sqrt", process_noise_sqrt, n)
+        return GaussianState(x=x_new, P=symmetrise(F @ P @ F.T + L @ L.T))
+
+    def update(
+        self,
+        state: GaussianState,
+        z: Any,
+        model: JacobianModel,
+        u: Any = None,
+        *,
+        measurement_noise_sqrt: Any = None,
+    ) -> tuple[GaussianState, UpdateInfo]:
+        """Linearised measurement update (Joseph form), gated on the NIS.
+
+        Args:
+            state: predicted state, ``x`` ``(n,)``, ``P`` ``(n, n)``.
+            z: measurement ``(p,)``, finite.
+            model: supplies ``h``, ``measurement_jacobian``, ``measurement_noise_sqrt``.
+            u: input passed to ``h`` and its Jacobian.
+            measurement_noise_sqrt: ``(p, r)`` factor of ``R`` overriding the
+                model's for this update (noise-adaptive filters).
+
+        Returns:
+            ``(posterior, info)``; the prior itself with ``info.accepted=False``
+            when the gate rejects.
+        """
+        n = model.state_dim
+        p = model.measurement_dim
+        x = check_vector("state.x", state.x, n)
+        P = check_square("state.P", state.P, n)
+        zv = check_measurement(z, p)
+        if measurement_noise_sqrt is None:
+            Rs = check_factor("model.measurement_noise_sqrt", model.measurement_noise_sqrt(), p)
+        else:
+            Rs = check_factor("measurement_noise_sqrt", measurement_noise_sqrt, p)
+        z_hat = _check_output("model.h", model.h(x, u), (p,))
+        H = _check_output("model.measurement_jacobian", model.measurement_jacobian(x, u), (p, n))
+        return joseph_update(state, x, P, zv, z_hat, H, Rs @ Rs.T, self.gate_threshold)

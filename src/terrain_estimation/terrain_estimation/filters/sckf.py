@@ -1,0 +1,190 @@
+"""Square-root cubature Kalman filter, exactly MODELS.md A.5 eqs. (14)–(28).
+
+[QC] (Reina, Leanza, Messina) after Arasaratnam & Haykin, *Cubature Kalman
+filters*, IEEE TAC 54(6), 2009. ``S`` is a lower-triangular factor,
+``P = S Sᵀ``; ``ξ = √n [I, −I]``, weights ``1/(2n)``. Point sets are stored as
+rows, so every "matrix of columns" of the paper appears transposed here::
+
+    X_i = S ξ_i + x̂                                           (14)
+    X*_i = f(X_i, u, dt)                                       (15)
+    x̄ = (1/2n) Σ X*_i                                         (16)
+    χ* = (1/√2n) [X*_1 − x̄ … X*_2n − x̄]                       (17)
+    S̄ = tria([χ*, √Q_k])                                      (18)
+    X_i = S̄ ξ_i + x̄;  Z_i = h(X_i, u);  ẑ = (1/2n) Σ Z_i      (19)–(21)
+    𝒵 = (1/√2n) [Z_i − ẑ];  S_z = tria([𝒵, √R])               (22)–(23)
+    χ = (1/√2n) [X_i − x̄];  P_xz = χ 𝒵ᵀ                        (24)–(25)
+    W = (P_xz / S_zᵀ) / S_z   (two triangular solves)          (26)
+    x̂ = x̄ + W (z − ẑ)                                         (27)
+    S = tria([χ − W 𝒵, W √R])                                  (28)
+
+with ``tria(A) = qr(Aᵀ)ᵀ`` (:func:`~.sigma_points.tria`) and the triangular
+solves by :func:`~.sigma_points.solve_lower` (BLAS ``dtrsm``, see there why
+not ``scipy.linalg.solve_triangular``). The recursion never
+forms ``P`` and never factors a matrix: every factor comes from a QR of
+stacked factors, which cannot fail and keeps ``P`` positive semi-definite by
+construction. Only :meth:`SquareRootCubatureKalmanFilter.initial_state`
+factors the user's ``P0``.
+"""
+
+# ruff: noqa: N803, N806 - matrix symbols (P, S, Q, R, W, ...) of the papers
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .base import (
+    SqrtGaussianState,
+    StateSpaceModel,
+    UpdateInfo,
+    check_square,
+    check_vector,
+    nis_gate,
+)
+from .kalman import check_factor, check_gate_threshold, check_measurement, initial_gaussian
+from .sigma_points import cubature_points, robust_sqrt, solve_lower, tria
+from .ukf import check_points
+
+__all__ = ["SquareRootCubatureKalmanFilter"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class SquareRootCubatureKalmanFilter:
+    """Square-root CKF carrying ``SqrtGaussianState(x, S)`` (MODELS.md A.5).
+
+    Args:
+        gate_threshold: Mahalanobis gate on the NIS (e.g. a χ²_p quantile);
+            ``None`` disables gating. A rejected measurement returns the
+            prior state unchanged with ``accepted=False``.
+    """
+
+    gate_threshold: float | None = None
+
+    def __post_init__(self) -> None:
+        check_gate_threshold(self.gate_threshold)
+
+    def initial_state(self, x0: Any, P0: Any) -> SqrtGaussianState:
+        """``SqrtGaussianState`` from a finite mean ``(n,)`` and a symmetric ``P0``.
+
+        ``P0`` is factored with :func:`~.sigma_points.robust_sqrt` (Cholesky,
+        or a PSD projection by clipped eigenvalues when ``P0`` is singular or
+        slightly indefinite): the only factorisation this filter performs.
+        """
+        g = initial_gaussian(x0, P0)
+        return SqrtGaussianState(x=g.x, S=robust_sqrt(g.P))
+
+    def predict(
+        self,
+        state: SqrtGaussianState,
+        model: StateSpaceModel,
+        u: Any,
+        dt: float,
+        *,
+        process_noise_sqrt: Any = None,
+    ) -> SqrtGaussianState:
+        """Time update, eqs. (14)–(18).
+
+        Args:
+            state: posterior at step k, ``x`` ``(n,)``, ``S`` ``(n, n)``.
+            model: supplies ``f`` (vectorised, ``(2n, n)`` → ``(2n, n)``) and
+                ``process_noise_sqrt`` (``√Q_k``, ``(n, q)``).
+            u: input over the step, passed through to the model.
+            dt: step length (s).
+            process_noise_sqrt: ``(n, q)`` factor overriding
+                ``model.process_noise_sqrt(x, u, dt)`` for this step.
+
+        Returns:
+            ``SqrtGaussianState(x̄, S̄)`` with ``S̄`` lower-triangular.
+
+        Raises:
+            ValueError: on wrong shapes or non-finite model outputs.
+        """
+        n = model.state_dim
+        x = check_vector("state.x", state.x, n)
+        S = check_square("state.S", state.S, n)
+        if process_noise_sqrt is None:
+            L = check_factor("model.process_noise_sqrt", model.process_noise_sqrt(x, u, dt), n)
+        else:
+            L = check_factor("process_noise_sqrt", process_noise_sqrt, n)
+        ps = cubature_points(n)
+        X = x + ps.unit @ S.T  # (14)
+        Xs = check_points("model.f", model.f(X, u, dt), 2 * n, n)  # (15)
+        x_pred = ps.Wm @ Xs  # (16)
+        chi_star_t = (Xs - x_pred) * (1.0 / math.sqrt(2 * n))  # (17), transposed
+        S_pred = tria(np.vstack([chi_star_t, L.T]).T)  # (18)
+        return SqrtGaussianState(x=x_pred, S=S_pred)
+
+    def update(
+        self,
+        state: SqrtGaussianState,
+        z: Any,
+        model: StateSpaceModel,
+        u: Any = None,
+        *,
+        measurement_noise_sqrt: Any = None,
+    ) -> tuple[SqrtGaussianState, UpdateInfo]:
+        """Measurement update, eqs. (19)–(28), gated on the NIS.
+
+        The NIS ``‖S_z⁻¹ ν‖²`` reuses the first triangular solve of the gain
+        (26), so gating costs nothing extra.
+
+        Args:
+            state: predicted state, ``x`` ``(n,)``, ``S`` ``(n, n)``.
+            z: measurement ``(p,)``, finite.
+            model: supplies ``h`` (vectorised, ``(2n, n)`` → ``(2n, p)``) and
+                ``measurement_noise_sqrt`` (``√R``, ``(p, r)``).
+            u: input passed to ``h``.
+            measurement_noise_sqrt: ``(p, r)`` factor of ``R`` overriding the
+                model's for this update (noise-adaptive filters).
+
+        Returns:
+            ``(posterior, info)``; ``info.innovation_cov = S_z S_zᵀ`` (formed
+            for reporting only) and ``info.extras["innovation_cov_sqrt"] = S_z``.
+            On rejection the prior itself with ``info.accepted=False``.
+        """
+        n = model.state_dim
+        p = model.measurement_dim
+        x = check_vector("state.x", state.x, n)
+        S = check_square("state.S", state.S, n)
+        zv = check_measurement(z, p)
+        if measurement_noise_sqrt is None:
+            Rs = check_factor("model.measurement_noise_sqrt", model.measurement_noise_sqrt(), p)
+        else:
+            Rs = check_factor("measurement_noise_sqrt", measurement_noise_sqrt, p)
+        ps = cubature_points(n)
+        c = 1.0 / math.sqrt(2 * n)
+        dX = ps.unit @ S.T  # X_i − x̄ of (19)
+        Z = check_points("model.h", model.h(x + dX, u), 2 * n, p)  # (19)-(20)
+        z_hat = ps.Wm @ Z  # (21)
+        Zc_t = (Z - z_hat) * c  # (22), transposed: 𝒵ᵀ (2n, p)
+        S_z = tria(np.vstack([Zc_t, Rs.T]).T)  # (23)
+        chi_t = dX * c  # (24), transposed: χᵀ (2n, n)
+        P_xz = chi_t.T @ Zc_t  # (25)
+        nu = zv - z_hat
+        info_extras = {"innovation_cov_sqrt": S_z}
+        # First solve of (26), S_z A = [P_xzᵀ, ν]: also whitens ν for the NIS ‖S_z⁻¹ν‖².
+        A = solve_lower(S_z, np.column_stack([P_xz.T, nu]))
+        w = A[:, n]
+        nis = float(w @ w)
+        if not np.diagonal(S_z).all():
+            # S_z singular (R = 0 and degenerate points): no usable innovation;
+            # an infinite NIS makes the gate reject it whatever the threshold.
+            nis = float("inf")
+        if not nis_gate(nis, self.gate_threshold):
+            info = UpdateInfo(
+                innovation=nu,
+                innovation_cov=S_z @ S_z.T,
+                nis=nis,
+                accepted=False,
+                extras=info_extras,
+            )
+            return state, info
+        # Second solve of (26), S_zᵀ Wᵀ = A: W = P_xz S_z⁻ᵀ S_z⁻¹.
+        W_t = solve_lower(S_z, A[:, :n], transpose=True)
+        x_post = x + nu @ W_t  # (27)
+        S_post = tria(np.vstack([chi_t - Zc_t @ W_t, Rs.T @ W_t]).T)  # (28)
+        info = UpdateInfo(innovation=nu, innovation_cov=S_z @ S_z.T, nis=nis, accepted=True, extras=info_extras)
+        return SqrtGaussianState(x=x_post, S=S_post), info
