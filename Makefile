@@ -23,10 +23,14 @@ MSG_SOURCES := $(wildcard src/terrain_msgs_py/msg/*.msg) src/terrain_msgs_py/CMa
 # Keep DDS discovery on this host: tests and demos never hear other machines.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
+# Small matrices at 100 Hz: a threaded BLAS only adds stalls (measured: ms spikes
+# in triangular solves on a busy machine). One thread per process.
+export OPENBLAS_NUM_THREADS ?= 1
+export OMP_NUM_THREADS ?= 1
 
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test lint typecheck unit reproduce bench clean distclean constraints
+.PHONY: setup demo test lint typecheck unit reproduce bench bags clean distclean constraints
 
 setup: $(PKGS_STAMP)
 
@@ -77,3 +81,12 @@ clean:
 
 distclean: clean
 	rm -rf $(VENV)
+
+# The recorded bags under bags/ (small: seconds of driving). Each is made by
+# terrain-simulate from config/<vehicle>.yaml plus the overrides named here.
+bags: setup
+	$(PY) -m vehicle_sim.tools.simulate --vehicle quarter_car --duration 4 -o bags/quarter_car_graneville_iso_d_10ms \
+		--param scenario.road=D --param scenario.road_seed=11 --param seed=12
+	$(PY) -m vehicle_sim.tools.simulate --vehicle lrv --duration 4 -o bags/lrv_regolith_iso_g_2ms \
+		--param scenario.road=G --param scenario.road_seed=21 --param seed=22 --param scenario.speed=2.0 \
+		--param 'scenario.soils=[lunar_regolith]'

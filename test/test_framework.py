@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PointStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from std_msgs.msg import Float64
-from geometry_msgs.msg import PointStamped
 
 from terrain_estimation.params import ParameterError, ParamSpec, load_parameter_file, resolve_parameters
 from terrain_estimation.ros.framework import AdapterHealth, EstimatorNode, SimulatorNode, TopicSpec
@@ -88,8 +87,14 @@ def test_parameter_file_sections(tmp_path):
 
 
 def test_estimator_node_parameters_and_diagnostics(rclpy_context):
-    node = EstimatorNode("mean_estimator", SPECS, RunningMeanAdapter, namespace="/veh",
-                         parameter_overrides=[Parameter("gain", value=0.25)], context=rclpy_context)
+    node = EstimatorNode(
+        "mean_estimator",
+        SPECS,
+        RunningMeanAdapter,
+        namespace="/veh",
+        parameter_overrides=[Parameter("gain", value=0.25)],
+        context=rclpy_context,
+    )
     try:
         described = node.describe_parameter("gain")
         assert "smoothing gain" in described.description
@@ -111,17 +116,28 @@ def test_estimator_node_parameters_and_diagnostics(rclpy_context):
 
 def test_out_of_range_override_is_refused(rclpy_context):
     with pytest.raises(Exception, match="gain"):
-        EstimatorNode("bad", SPECS, RunningMeanAdapter, parameter_overrides=[Parameter("gain", value=5.0)],
-                      context=rclpy_context)
+        EstimatorNode(
+            "bad", SPECS, RunningMeanAdapter, parameter_overrides=[Parameter("gain", value=5.0)], context=rclpy_context
+        )
 
 
 def test_simulator_drives_sim_time_and_estimator(rclpy_context):
-    sim = SimulatorNode("sim", (), CounterSimAdapter, namespace="/veh", context=rclpy_context,
-                        parameter_overrides=[Parameter("realtime_factor", value=0.0),
-                                             Parameter("duration", value=0.5)])
-    est = EstimatorNode("est", SPECS, RunningMeanAdapter, namespace="/veh", context=rclpy_context,
-                        parameter_overrides=[Parameter("use_sim_time", value=True),
-                                             Parameter("diagnostics.period", value=0.1)])
+    sim = SimulatorNode(
+        "sim",
+        (),
+        CounterSimAdapter,
+        namespace="/veh",
+        context=rclpy_context,
+        parameter_overrides=[Parameter("realtime_factor", value=0.0), Parameter("duration", value=0.5)],
+    )
+    est = EstimatorNode(
+        "est",
+        SPECS,
+        RunningMeanAdapter,
+        namespace="/veh",
+        context=rclpy_context,
+        parameter_overrides=[Parameter("use_sim_time", value=True), Parameter("diagnostics.period", value=0.1)],
+    )
     diagnostics: list[DiagnosticArray] = []
     est.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 10)
     executor = SingleThreadedExecutor(context=rclpy_context)

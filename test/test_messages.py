@@ -8,11 +8,13 @@ import array
 from pathlib import Path
 
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PointStamped, TwistStamped, WrenchStamped
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+from terrain_estimation.bag import AtomicBagWriter, terrain_msgs_definitions, typestore
 from terrain_msgs.msg import (
     SkidSteerState,
     SoilStiffness,
@@ -20,8 +22,6 @@ from terrain_msgs.msg import (
     WheelTerrain,
     WheelTerrainArray,
 )
-
-from terrain_estimation.bag import AtomicBagWriter, terrain_msgs_definitions, typestore
 
 
 def _stamp(msg, sec=12, nanosec=345):
@@ -32,21 +32,64 @@ def _stamp(msg, sec=12, nanosec=345):
 
 
 def terrain_samples():
-    soil = _stamp(SoilStiffness(k_s=651.1e3, k_s_variance=4e6, k_tot=137.93e3, k_tot_variance=1e4,
-                                terrain_class="graneville_loam", class_confidence=0.93, converged=True,
-                                soil_change_detected=False, nis=1.7))
-    skid = _stamp(SkidSteerState(vx=8.3, vy=-0.12, yaw_rate=0.2, body_sideslip=-0.0144,
-                                 slip_left=0.03, slip_right=-0.02,
-                                 tire_sideslip=[0.01, 0.02, 0.03, -0.01, -0.02, -0.03],
-                                 icr_x=1.2, icr_y=41.5, icr_valid=True, fading_factor=1.4, noise_scale=0.8))
-    wheels = _stamp(WheelTerrainArray(wheels=[
-        WheelTerrain(wheel=name, slip=0.1 * i, normal_load=40.0 + i, drawbar_pull=3.0 - i,
-                     resistive_torque=0.4 * i, contact_angle=0.3) for i, name in enumerate(["front", "middle", "rear"])
-    ]))
-    model = _stamp(TerrainResponseModel(order=2, dp_coefficients=[1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
-                                        tau_coefficients=[0.1, 0.2, 0.3, 0.4, 0.5, 0.6], slip_min=0.0,
-                                        slip_max=0.6, load_min=20.0, load_max=80.0, samples=42,
-                                        dp_rms=0.7, tau_rms=0.05))
+    soil = _stamp(
+        SoilStiffness(
+            k_s=651.1e3,
+            k_s_variance=4e6,
+            k_tot=137.93e3,
+            k_tot_variance=1e4,
+            terrain_class="graneville_loam",
+            class_confidence=0.93,
+            converged=True,
+            soil_change_detected=False,
+            nis=1.7,
+        )
+    )
+    skid = _stamp(
+        SkidSteerState(
+            vx=8.3,
+            vy=-0.12,
+            yaw_rate=0.2,
+            body_sideslip=-0.0144,
+            slip_left=0.03,
+            slip_right=-0.02,
+            tire_sideslip=[0.01, 0.02, 0.03, -0.01, -0.02, -0.03],
+            icr_x=1.2,
+            icr_y=41.5,
+            icr_valid=True,
+            fading_factor=1.4,
+            noise_scale=0.8,
+        )
+    )
+    wheels = _stamp(
+        WheelTerrainArray(
+            wheels=[
+                WheelTerrain(
+                    wheel=name,
+                    slip=0.1 * i,
+                    normal_load=40.0 + i,
+                    drawbar_pull=3.0 - i,
+                    resistive_torque=0.4 * i,
+                    contact_angle=0.3,
+                )
+                for i, name in enumerate(["front", "middle", "rear"])
+            ]
+        )
+    )
+    model = _stamp(
+        TerrainResponseModel(
+            order=2,
+            dp_coefficients=[1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+            tau_coefficients=[0.1, 0.2, 0.3, 0.4, 0.5, 0.6],
+            slip_min=0.0,
+            slip_max=0.6,
+            load_min=20.0,
+            load_max=80.0,
+            samples=42,
+            dp_rms=0.7,
+            tau_rms=0.05,
+        )
+    )
     return [soil, skid, wheels, model]
 
 
@@ -54,8 +97,9 @@ def contract_samples():
     imu = _stamp(Imu())
     imu.linear_acceleration.z = 9.80665
     imu.orientation_covariance[0] = -1.0
-    joints = _stamp(JointState(name=["left_motor", "right_motor"], position=[1.0, 2.0], velocity=[3.0, 4.0],
-                               effort=[0.5, 0.6]))
+    joints = _stamp(
+        JointState(name=["left_motor", "right_motor"], position=[1.0, 2.0], velocity=[3.0, 4.0], effort=[0.5, 0.6])
+    )
     profile = _stamp(PointStamped())
     profile.point.x, profile.point.z = 12.5, -0.004
     odom = _stamp(Odometry(child_frame_id="skid_steer/base_link"))
@@ -66,8 +110,11 @@ def contract_samples():
     wrench.wrench.force.z = 55.0
     clock = Clock()
     clock.clock.sec = 3
-    diagnostics = _stamp(DiagnosticArray(status=[DiagnosticStatus(level=DiagnosticStatus.WARN, name="x",
-                                                                  values=[KeyValue(key="k", value="v")])]))
+    diagnostics = _stamp(
+        DiagnosticArray(
+            status=[DiagnosticStatus(level=DiagnosticStatus.WARN, name="x", values=[KeyValue(key="k", value="v")])]
+        )
+    )
     return [imu, joints, profile, odom, twist, wrench, clock, diagnostics] + terrain_samples()
 
 
@@ -77,7 +124,7 @@ def _equal(a, b) -> bool:
         return all(_equal(getattr(a, f), getattr(b, f)) for f in a.get_fields_and_field_types())
     if isinstance(a, (list, tuple, array.array)) or getattr(a, "ndim", 0) > 0:
         a_list, b_list = list(a), list(b)
-        return len(a_list) == len(b_list) and all(_equal(x, y) for x, y in zip(a_list, b_list))
+        return len(a_list) == len(b_list) and all(_equal(x, y) for x, y in zip(a_list, b_list, strict=True))
     if isinstance(a, float):
         return float(a) == float(b)  # CDR keeps float64 bits exactly
     if isinstance(a, bytes):
@@ -111,8 +158,7 @@ def test_live_pubsub_every_terrain_msg_type(rclpy_context):
     for msg in samples:
         name = type(msg).__name__
         topic = f"roundtrip/{name}"
-        node.create_subscription(type(msg), topic, lambda m, n=name: received.setdefault(n, []).append(m),
-                                 ESTIMATE_QOS)
+        node.create_subscription(type(msg), topic, lambda m, n=name: received.setdefault(n, []).append(m), ESTIMATE_QOS)
         pubs[name] = node.create_publisher(type(msg), topic, ESTIMATE_QOS)
     for _ in range(200):  # discovery takes a moment; publish until every type arrived
         for msg in samples:
@@ -140,8 +186,7 @@ def test_bag_roundtrip_every_contract_type_decodes_without_project_code(tmp_path
     # A reader with no project code: AnyReader builds its types from the
     # message definitions stored in the bag.
     with AnyReader([bag]) as reader:
-        decoded = {c.topic.split("/")[-1]: reader.deserialize(raw, c.msgtype)
-                   for c, _, raw in reader.messages()}
+        decoded = {c.topic.split("/")[-1]: reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()}
     assert set(decoded) == {type(m).__name__ for m in samples}
     for msg in samples:
         assert _equal(msg, decoded[type(msg).__name__]), type(msg).__name__

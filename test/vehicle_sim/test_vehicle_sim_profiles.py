@@ -118,9 +118,7 @@ def test_uniform_spacing_is_agostinacchio_grid_and_periodic():
     n = profile.spatial_frequencies
     np.testing.assert_allclose(np.diff(n), 1 / length)
     assert n[0] == pytest.approx(0.05)
-    np.testing.assert_allclose(
-        profile.amplitudes, np.sqrt(2 * ISO8608_GD_N0["D"] * (n / ISO8608_N0) ** -2 / length)
-    )
+    np.testing.assert_allclose(profile.amplitudes, np.sqrt(2 * ISO8608_GD_N0["D"] * (n / ISO8608_N0) ** -2 / length))
     s = np.linspace(0, 30, 50)
     np.testing.assert_allclose(profile.elevation(s + length), profile.elevation(s), atol=1e-12)
     check = check_iso8608_psd(profile, "D", length=length)
@@ -144,9 +142,7 @@ def test_flat_and_sinusoid():
     sine = sinusoidal_profile(0.02, 4.0, phase=0.3)
     s = np.array([0.0, 1.0, 2.5])
     np.testing.assert_allclose(sine.elevation(s), 0.02 * np.cos(2 * np.pi * s / 4 + 0.3))
-    np.testing.assert_allclose(
-        sine.slope(s), -0.02 * 2 * np.pi / 4 * np.sin(2 * np.pi * s / 4 + 0.3)
-    )
+    np.testing.assert_allclose(sine.slope(s), -0.02 * 2 * np.pi / 4 * np.sin(2 * np.pi * s / 4 + 0.3))
 
 
 def test_invalid_arguments():

@@ -55,9 +55,7 @@ def test_at_rest_accelerometers_read_plus_g(vehicle):
     np.testing.assert_allclose(result.body_accel_z, STANDARD_GRAVITY, atol=1e-12)
     if vehicle.has_wheel_accelerometer:
         np.testing.assert_allclose(result.wheel_accel_z, STANDARD_GRAVITY, atol=1e-12)
-    np.testing.assert_allclose(
-        result.truth.contact_force, vehicle.total_mass * STANDARD_GRAVITY, rtol=1e-12
-    )
+    np.testing.assert_allclose(result.truth.contact_force, vehicle.total_mass * STANDARD_GRAVITY, rtol=1e-12)
     assert np.all(result.truth.in_contact)
     np.testing.assert_array_equal(result.distance, 0.0)
 
@@ -74,9 +72,7 @@ def test_accelerometer_noise_statistics():
 # --- natural frequencies ----------------------------------------------------
 
 
-@pytest.mark.parametrize(
-    "soil", [UPLAND_SANDY_LOAM, GRANEVILLE_LOAM, LETE_SAND], ids=lambda soil: soil.name
-)
+@pytest.mark.parametrize("soil", [UPLAND_SANDY_LOAM, GRANEVILLE_LOAM, LETE_SAND], ids=lambda soil: soil.name)
 def test_two_dof_free_response_eigenvalues(soil):
     scenario = quiet(speed=0.0, soil_path=soil)
     free = simulate(QC, scenario, 4.0, seed=0, initial_state=(0.01, 0.0, -0.005, 0.0))
@@ -96,9 +92,7 @@ def test_two_dof_undamped_frequencies_vs_closed_form():
     assert measured == pytest.approx([body, wheel], rel=1e-5)
     # MODELS.md A.1 "body ≈ 1.18 Hz" is the uncoupled sprung-mass frequency √(k/m_s);
     # the coupled body mode sits a little lower, the wheel hop in 8.2–10.2 Hz.
-    assert np.sqrt(QC.suspension_stiffness / QC.sprung_mass) / (2 * np.pi) == pytest.approx(
-        1.18, abs=0.005
-    )
+    assert np.sqrt(QC.suspension_stiffness / QC.sprung_mass) / (2 * np.pi) == pytest.approx(1.18, abs=0.005)
     assert 1.0 < body < 1.18
     assert 8.2 < wheel < 10.3
 
@@ -145,9 +139,7 @@ def test_two_dof_sinusoidal_steady_state_matches_frequency_response():
 
 def test_lrv_sinusoidal_steady_state_ground_damper():
     speed, wavelength, amplitude = 2.0, 1.0, 0.01  # 2 Hz excitation
-    scenario = quiet(
-        profile=sinusoidal_profile(amplitude, wavelength), speed=speed, soil_path=LUNAR_REGOLITH
-    )
+    scenario = quiet(profile=sinusoidal_profile(amplitude, wavelength), speed=speed, soil_path=LUNAR_REGOLITH)
     result = simulate(LRV, scenario, 10.0, seed=0)
     omega = 2 * np.pi * speed / wavelength
     kt, c, m = LRV.k_tot(LUNAR_REGOLITH.k_s), LRV.damping, LRV.sprung_mass
@@ -168,9 +160,7 @@ def test_truth_satisfies_equations_of_motion():
     )
     np.testing.assert_allclose(QC.sprung_mass * tr.body_acceleration, suspension, atol=1e-9)
     ground = tr.k_tot * (tr.road_elevation - tr.wheel_displacement)
-    np.testing.assert_allclose(
-        QC.unsprung_mass * tr.wheel_acceleration, ground - suspension, atol=1e-9
-    )
+    np.testing.assert_allclose(QC.unsprung_mass * tr.wheel_acceleration, ground - suspension, atol=1e-9)
     np.testing.assert_allclose(r.body_accel_z, tr.body_acceleration + STANDARD_GRAVITY)
     road = scenario.profile
     np.testing.assert_allclose(tr.road_elevation, road.elevation(r.distance), atol=1e-14)
@@ -232,9 +222,7 @@ def test_soil_switch_at_the_right_distance():
     np.testing.assert_allclose(
         r.truth.k_tot, np.where(on_upland, QC.k_tot(UPLAND_SANDY_LOAM.k_s), QC.k_tot(LETE_SAND.k_s))
     )
-    np.testing.assert_allclose(
-        r.truth.k_s, np.where(on_upland, UPLAND_SANDY_LOAM.k_s, LETE_SAND.k_s)
-    )
+    np.testing.assert_allclose(r.truth.k_s, np.where(on_upland, UPLAND_SANDY_LOAM.k_s, LETE_SAND.k_s))
 
 
 def test_speed_profile_distance_is_exact_integral():
@@ -295,9 +283,7 @@ def test_lrv_has_no_wheel_accelerometer():
     np.testing.assert_allclose(r.truth.k_tot, 9826.04, rtol=1e-5)
     np.testing.assert_allclose(r.wheel_rate, 2.0 / 0.508)
     tr = r.truth
-    dynamic = tr.k_tot * (tr.road_elevation - tr.body_displacement) + LRV.damping * (
-        tr.road_rate - tr.body_velocity
-    )
+    dynamic = tr.k_tot * (tr.road_elevation - tr.body_displacement) + LRV.damping * (tr.road_rate - tr.body_velocity)
     np.testing.assert_allclose(LRV.sprung_mass * tr.body_acceleration, dynamic, atol=1e-9)
 
 
@@ -352,9 +338,7 @@ def test_damped_energy_decays_by_the_dissipated_work():
 def test_wheel_liftoff_is_unilateral():
     profile = iso8608_profile("F", seed=3)
     linear = simulate(QC, Scenario(profile=profile, soil_path=LETE_SAND), 5.0, seed=0)
-    lifting = simulate(
-        QC, Scenario(profile=profile, soil_path=LETE_SAND, wheel_liftoff=True), 5.0, seed=0
-    )
+    lifting = simulate(QC, Scenario(profile=profile, soil_path=LETE_SAND, wheel_liftoff=True), 5.0, seed=0)
     # MODELS.md A.10: at ISO F, 10 m/s the tire would leave the ground 7–9 % of the time.
     assert linear.truth.contact_force.min() < 0.0
     assert 0.02 < 1.0 - linear.truth.in_contact.mean() < 0.3

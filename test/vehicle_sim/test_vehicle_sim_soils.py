@@ -48,9 +48,7 @@ TABLE1 = [
 def test_table1_values_and_derived_columns(soil, k_s_kn, k_tot_kn, gain):
     assert soil.k_s == pytest.approx(k_s_kn * 1e3, rel=1e-12)
     assert soil.k_tot(TIRE_STIFFNESS) / 1e3 == pytest.approx(k_tot_kn, abs=0.006)
-    assert k_s_error_amplification(soil.k_tot(TIRE_STIFFNESS), TIRE_STIFFNESS) == pytest.approx(
-        gain, abs=0.006
-    )
+    assert k_s_error_amplification(soil.k_tot(TIRE_STIFFNESS), TIRE_STIFFNESS) == pytest.approx(gain, abs=0.006)
 
 
 def test_soil_registry():
@@ -150,9 +148,7 @@ def test_rigid_wheel_stiffness_matches_independent_check(name, expected_kn):
 
 def test_rigid_wheel_lrv_regolith():
     params = BEKKER_PARAMETERS_UNVERIFIED["lunar_regolith"]
-    assert rigid_wheel_equivalent_stiffness(735.0, 1.016, 0.254, params) / 1e3 == pytest.approx(
-        36.7, abs=0.1
-    )
+    assert rigid_wheel_equivalent_stiffness(735.0, 1.016, 0.254, params) / 1e3 == pytest.approx(36.7, abs=0.1)
 
 
 @pytest.mark.parametrize("name", sorted(BEKKER_PARAMETERS_UNVERIFIED))
@@ -163,15 +159,10 @@ def test_bekker_functions_are_consistent(name):
     assert rigid_wheel_load(z0, diameter, width, params) == pytest.approx(load, rel=1e-12)
     dz = 1e-7 * z0
     slope = (
-        rigid_wheel_load(z0 + dz, diameter, width, params)
-        - rigid_wheel_load(z0 - dz, diameter, width, params)
+        rigid_wheel_load(z0 + dz, diameter, width, params) - rigid_wheel_load(z0 - dz, diameter, width, params)
     ) / (2 * dz)
-    assert rigid_wheel_equivalent_stiffness(load, diameter, width, params) == pytest.approx(
-        slope, rel=1e-6
-    )
+    assert rigid_wheel_equivalent_stiffness(load, diameter, width, params) == pytest.approx(slope, rel=1e-6)
     pressure = 40e3
     z_flat = flat_contact_static_sinkage(pressure, width, params)
     assert bekker_pressure(z_flat, width, params) == pytest.approx(pressure, rel=1e-12)
-    assert flat_contact_equivalent_stiffness(load, pressure, width, params) == pytest.approx(
-        params.n * load / z_flat
-    )
+    assert flat_contact_equivalent_stiffness(load, pressure, width, params) == pytest.approx(params.n * load / z_flat)

@@ -94,7 +94,7 @@ def message_class(msgtype: str) -> type:
         raise BagError(f"message type {msgtype!r} is not of the form pkg/msg/Name") from None
     try:
         module = importlib.import_module(f"{package}.{kind}")
-        return getattr(module, name)  # type: ignore[no-any-return]
+        return getattr(module, name)
     except (ImportError, AttributeError) as exc:
         raise BagError(f"message type {msgtype!r} is not installed: {exc}") from exc
 
@@ -149,8 +149,7 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) 
         raise
     except Exception as exc:  # rosbags/storage errors: name what was read
         raise BagError(
-            f"bag {str(bag)!r} is unreadable after {count} messages "
-            f"(last topic {topic}): {type(exc).__name__}: {exc}"
+            f"bag {str(bag)!r} is unreadable after {count} messages (last topic {topic}): {type(exc).__name__}: {exc}"
         ) from exc
 
 

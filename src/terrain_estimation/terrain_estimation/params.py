@@ -33,7 +33,9 @@ __all__ = [
     "resolve_parameters",
 ]
 
-ParamValue = bool | int | float | str | list[float] | list[str]
+# A parameter value: bool, int, float, str or a list of floats or strings,
+# validated against its ParamSpec (so consumers may convert it directly).
+ParamValue = Any
 
 
 class ParameterError(ValueError):
@@ -98,7 +100,7 @@ class ParamSpec:
             assert isinstance(default, list)
             if default and isinstance(default[0], str):
                 return [str(v) for v in value]
-            return [self._number(v, float) for v in value]  # type: ignore[misc]
+            return [self._number(v, float) for v in value]
         return self._number(value, kind)
 
     def _number(self, value: Any, kind: type) -> Any:

@@ -33,7 +33,7 @@ class VehicleEntry:
         name: vehicle name, also the config file's stem (``config/<name>.yaml``).
         namespace: default namespace of its topics.
         node_name: the estimator node's name (its section in the config file).
-        module: module providing ``PARAMETERS`` (ParamSpec tuple) and
+        module: module providing ``specs_for(name)`` (ParamSpec tuple) and
             ``make_adapter(values, namespace)``.
     """
 
@@ -47,11 +47,11 @@ class VehicleEntry:
 
     @property
     def specs(self) -> Sequence[ParamSpec]:
-        return tuple(self._load().PARAMETERS)
+        return tuple(self._load().specs_for(self.name))
 
     @property
     def make_adapter(self) -> Callable[[Mapping[str, ParamValue], str], Any]:
-        return self._load().make_adapter  # type: ignore[no-any-return]
+        return self._load().make_adapter
 
     def config_path(self) -> Path:
         return default_config_path(self.name)

@@ -33,9 +33,7 @@ def _format(value: Any) -> str:
     return str(value)
 
 
-def make_status(
-    name: str, hardware_id: str, level: bytes, message: str, values: Mapping[str, Any]
-) -> DiagnosticStatus:
+def make_status(name: str, hardware_id: str, level: bytes, message: str, values: Mapping[str, Any]) -> DiagnosticStatus:
     if level not in _ORDER:
         raise ValueError(f"diagnostic level must be one of the DiagnosticStatus bytes constants, got {level!r}")
     return DiagnosticStatus(

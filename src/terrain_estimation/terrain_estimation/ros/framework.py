@@ -63,12 +63,15 @@ class TopicSpec:
         topic: name relative to the vehicle namespace (``"imu/body"``).
         msg_type: rclpy message class.
         kind: ``"sensor"`` (sensor-data QoS) or ``"estimate"`` (reliable, depth 10).
+        truth_fields: for an estimate, the fields that ``ground_truth/<topic>``
+            gives the true value of (compared by the tools' summaries).
     """
 
     key: str
     topic: str
     msg_type: type
     kind: str = "sensor"
+    truth_fields: tuple[str, ...] = ()
 
 
 @dataclass
@@ -230,9 +233,7 @@ class EstimatorNode(_ParamsMixin, Node):
         parameter_overrides: Sequence[Parameter] | None = None,
         **kwargs: Any,
     ) -> None:
-        super().__init__(
-            node_name, namespace=namespace, parameter_overrides=list(parameter_overrides or []), **kwargs
-        )
+        super().__init__(node_name, namespace=namespace, parameter_overrides=list(parameter_overrides or []), **kwargs)
         all_specs = tuple(self.COMMON_SPECS) + tuple(specs)
         self._specs = {s.name: s for s in all_specs}
         self.values = declare_specs(self, all_specs)
@@ -243,9 +244,7 @@ class EstimatorNode(_ParamsMixin, Node):
             o.key: self.create_publisher(o.msg_type, o.topic, qos_for(o.kind)) for o in self.adapter.outputs
         }
         for spec in self.adapter.inputs:
-            self.create_subscription(
-                spec.msg_type, spec.topic, self._callback_for(spec.key), qos_for(spec.kind)
-            )
+            self.create_subscription(spec.msg_type, spec.topic, self._callback_for(spec.key), qos_for(spec.kind))
         self._diag_pub = self.create_publisher(diag.DiagnosticArray, "/diagnostics", 10)
         self._rate_window: deque[float] = deque(maxlen=100)  # stamps of recent updates
         self._last_updates = 0
@@ -271,9 +270,7 @@ class EstimatorNode(_ParamsMixin, Node):
         # A parameter of the model or filter changed: rebuild from the new
         # values. The filter restarts; say so rather than mix two models.
         self.adapter = self._make_adapter(self.values, self.get_namespace())
-        self.get_logger().info(
-            "parameters " + ", ".join(p.name for p in changed) + " changed: estimator restarted"
-        )
+        self.get_logger().info("parameters " + ", ".join(p.name for p in changed) + " changed: estimator restarted")
 
     def diagnostic_status(self) -> diag.DiagnosticStatus:
         """The node's health as one DiagnosticStatus (also used by tests)."""
@@ -320,9 +317,7 @@ class EstimatorNode(_ParamsMixin, Node):
         )
 
     def publish_diagnostics(self) -> None:
-        self._diag_pub.publish(
-            diag.make_array(self.get_clock().now().to_msg(), [self.diagnostic_status()])
-        )
+        self._diag_pub.publish(diag.make_array(self.get_clock().now().to_msg(), [self.diagnostic_status()]))
 
 
 class SimulatorNode(_ParamsMixin, Node):
@@ -359,9 +354,7 @@ class SimulatorNode(_ParamsMixin, Node):
         parameter_overrides: Sequence[Parameter] | None = None,
         **kwargs: Any,
     ) -> None:
-        super().__init__(
-            node_name, namespace=namespace, parameter_overrides=list(parameter_overrides or []), **kwargs
-        )
+        super().__init__(node_name, namespace=namespace, parameter_overrides=list(parameter_overrides or []), **kwargs)
         all_specs = tuple(self.COMMON_SPECS) + tuple(specs)
         self._specs = {s.name: s for s in all_specs}
         self.values = declare_specs(self, all_specs)
@@ -369,9 +362,7 @@ class SimulatorNode(_ParamsMixin, Node):
         self._output_publishers = {
             o.key: self.create_publisher(o.msg_type, o.topic, qos_for(o.kind)) for o in self.adapter.outputs
         }
-        self._clock_pub = (
-            self.create_publisher(Clock, "/clock", CLOCK_QOS) if self.values["publish_clock"] else None
-        )
+        self._clock_pub = self.create_publisher(Clock, "/clock", CLOCK_QOS) if self.values["publish_clock"] else None
         self.sim_time = 0.0
         self.steps = 0
         self.done = False

@@ -61,6 +61,7 @@ class EstimationRun:
     outputs: list[tuple[str, Any, int]] = field(default_factory=list)  # (topic, msg, log time ns)
     inputs_read: int = 0
     truth: dict[str, list[Any]] = field(default_factory=dict)  # estimate topic -> truth messages
+    truth_fields: dict[str, tuple[str, ...]] = field(default_factory=dict)  # estimate topic -> compared fields
 
     def messages(self, topic: str) -> list[Any]:
         return [m for t, m, _ in self.outputs if t == topic]
@@ -80,8 +81,10 @@ def run_adapter(
     """
     inputs = {topic_name(namespace, s.topic): s.key for s in adapter.inputs}
     outputs = {s.key: topic_name(namespace, s.topic) for s in adapter.outputs}
-    truth_topics = {topic_name(namespace, "ground_truth/" + s.topic): topic_name(namespace, s.topic) for s in adapter.outputs}
-    run = EstimationRun()
+    truth_topics = {
+        topic_name(namespace, "ground_truth/" + s.topic): topic_name(namespace, s.topic) for s in adapter.outputs
+    }
+    run = EstimationRun(truth_fields={outputs[s.key]: s.truth_fields for s in adapter.outputs})
     started = time.monotonic()
     last_report = started
     for item in read_bag(bag, list(inputs) + list(truth_topics)):
@@ -94,8 +97,7 @@ def run_adapter(
         if progress and time.monotonic() - last_report > 2.0:
             last_report = time.monotonic()
             print(
-                f"  ... {run.inputs_read} messages, {len(run.outputs)} estimates, "
-                f"{last_report - started:.0f} s",
+                f"  ... {run.inputs_read} messages, {len(run.outputs)} estimates, {last_report - started:.0f} s",
                 file=sys.stderr,
             )
     return run
@@ -122,8 +124,10 @@ def _stamp(msg: Any) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
-def truth_errors(estimates: Sequence[Any], truths: Sequence[Any]) -> dict[str, tuple[float, float]]:
-    """RMS and final absolute error of every numeric field against ground truth.
+def truth_errors(
+    estimates: Sequence[Any], truths: Sequence[Any], fields: Sequence[str]
+) -> dict[str, tuple[float, float, float]]:
+    """RMS, final absolute and final relative error of ``fields`` against ground truth.
 
     Each estimate is compared with the latest truth message stamped at or
     before it (truth is piecewise constant between its samples).
@@ -133,16 +137,24 @@ def truth_errors(estimates: Sequence[Any], truths: Sequence[Any]) -> dict[str, t
     t_truth = np.array([_stamp(m) for m in truths])
     truth_fields = [numeric_fields(m) for m in truths]
     errors: dict[str, list[float]] = {}
+    last_ref: dict[str, float] = {}
     for est in estimates:
         i = int(np.searchsorted(t_truth, _stamp(est), side="right")) - 1
         if i < 0:
             continue
         ref = truth_fields[i]
-        for name, value in numeric_fields(est).items():
-            if name in ref and not name.endswith("variance"):
-                errors.setdefault(name, []).append(value - ref[name])
+        values = numeric_fields(est)
+        for name in fields:
+            errors.setdefault(name, []).append(values[name] - ref[name])
+        last_ref = ref
     return {
-        name: (math.sqrt(float(np.mean(np.square(e)))), abs(e[-1])) for name, e in errors.items() if e
+        name: (
+            math.sqrt(float(np.mean(np.square(e)))),
+            abs(e[-1]),
+            abs(e[-1]) / abs(last_ref[name]) if last_ref[name] else math.inf,
+        )
+        for name, e in errors.items()
+        if e
     }
 
 
@@ -155,9 +167,9 @@ def _summary_lines(run: EstimationRun) -> Iterator[str]:
         last = numeric_fields(msgs[-1])
         shown = ", ".join(f"{k}={v:.6g}" for k, v in list(last.items())[:8])
         yield f"  last: {shown}"
-        errs = truth_errors(msgs, run.truth.get(topic, []))
-        for name, (rms, final) in errs.items():
-            yield f"  vs ground truth {name}: rms error {rms:.6g}, final error {final:.6g}"
+        errs = truth_errors(msgs, run.truth.get(topic, []), run.truth_fields.get(topic, ()))
+        for name, (rms, final, rel) in errs.items():
+            yield f"  vs ground truth {name}: rms error {rms:.6g}, final error {final:.6g} ({100 * rel:.2f} %)"
 
 
 def _parse_overrides(items: Sequence[str]) -> dict[str, Any]:

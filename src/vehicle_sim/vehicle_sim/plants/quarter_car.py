@@ -205,9 +205,7 @@ class LRVVehicle:
         if not self.damping >= 0.0:
             raise ValueError(f"damping must be ≥ 0, got {self.damping}")
         if self.damper_reference not in ("ground", "inertial"):
-            raise ValueError(
-                f"damper_reference must be 'ground' or 'inertial', got {self.damper_reference!r}"
-            )
+            raise ValueError(f"damper_reference must be 'ground' or 'inertial', got {self.damper_reference!r}")
 
     @property
     def series_stiffness(self) -> float:
@@ -266,9 +264,7 @@ class SpeedProfile:
             raise ValueError(f"knot times must increase strictly, got {times}")
         if any(not (v >= 0.0 and math.isfinite(v)) for v in speeds):
             raise ValueError(f"speeds must be finite and ≥ 0 m/s, got {speeds}")
-        accel = [
-            (speeds[i + 1] - speeds[i]) / (times[i + 1] - times[i]) for i in range(len(times) - 1)
-        ] + [0.0]
+        accel = [(speeds[i + 1] - speeds[i]) / (times[i + 1] - times[i]) for i in range(len(times) - 1)] + [0.0]
         cumulative = [0.0]
         for i in range(len(times) - 1):
             dt = times[i + 1] - times[i]
@@ -639,7 +635,7 @@ class QuarterCarSimulator:
         n_states = 4 if self._two_dof else 2
         if initial_state is None:
             h0 = float(scenario.profile.elevation(np.array([0.0]))[0])
-            state = (h0, 0.0, h0, 0.0) if self._two_dof else (h0, 0.0)
+            state: tuple[float, ...] = (h0, 0.0, h0, 0.0) if self._two_dof else (h0, 0.0)
         else:
             state = tuple(float(x) for x in initial_state)
             if len(state) != n_states:
@@ -684,10 +680,8 @@ class QuarterCarSimulator:
             v = float(speed_profile.speed(t0))
             s0 = float(speed_profile.distance(t0))
             stage_spacing = v * 0.5 * self._dt
-            stage_distance = s0 + stage_spacing * np.arange(self._stage_offsets.size)
-            road, slope = scenario.profile.evaluate_uniform(
-                s0, stage_spacing, self._stage_offsets.size
-            )
+            stage_distance = np.asarray(s0 + stage_spacing * np.arange(self._stage_offsets.size), dtype=np.float64)
+            road, slope = scenario.profile.evaluate_uniform(s0, stage_spacing, self._stage_offsets.size)
             road_rate = v * slope
         else:
             stage_times = t0 + self._stage_offsets
@@ -726,14 +720,12 @@ class QuarterCarSimulator:
 
         distance = float(stage_distance[-1])
         speed = float(speed_profile.speed(t1))
-        truth = self._truth(
-            float(road[-1]), float(road_rate[-1]), stiffness[-1], int(soil_index[-1])
-        )
+        truth = self._truth(float(road[-1]), float(road_rate[-1]), stiffness[-1], int(soil_index[-1]))
         noise = self._accel_rng.standard_normal(2) * self._accel_std
         g = scenario.gravity
-        body_accel = truth.body_acceleration + g + float(noise[0])
+        body_accel = float(truth.body_acceleration) + g + float(noise[0])
         wheel_accel = (
-            truth.wheel_acceleration + g + float(noise[1])  # type: ignore[operator]
+            float(truth.wheel_acceleration) + g + float(noise[1])  # type: ignore[arg-type]
             if self._two_dof
             else None
         )
@@ -757,16 +749,14 @@ class QuarterCarSimulator:
         if self._two_dof:
             vehicle: QuarterCarVehicle = self.vehicle  # type: ignore[assignment]
             y1, v1, y2, v2 = self._state
-            suspension = vehicle.suspension_stiffness * (y2 - y1) + vehicle.suspension_damping * (
-                v2 - v1
-            )
+            suspension = vehicle.suspension_stiffness * (y2 - y1) + vehicle.suspension_damping * (v2 - v1)
             dynamic = kt * (h - y2)
             in_contact = load + dynamic > 0.0
             if liftoff and not in_contact:
                 dynamic = -load
             a1 = suspension / vehicle.sprung_mass
             a2 = (dynamic - suspension) / vehicle.unsprung_mass
-            wheel = (y2, v2, a2)
+            wheel: tuple[float | None, float | None, float | None] = (y2, v2, a2)
         else:
             lrv: LRVVehicle = self.vehicle  # type: ignore[assignment]
             y1, v1 = self._state
@@ -821,15 +811,11 @@ class QuarterCarSimulator:
             distance = scenario.speed.distance(times)
             if constant_speed:
                 spacing = float(scenario.speed.speed(t0)) / rate
-                elevation, _ = scenario.profile.evaluate_uniform(
-                    float(distance[0]), spacing, indices.size
-                )
+                elevation, _ = scenario.profile.evaluate_uniform(float(distance[0]), spacing, indices.size)
             else:
                 elevation = scenario.profile.elevation(distance)
         if scenario.profile_noise_std > 0.0:
-            elevation = elevation + scenario.profile_noise_std * self._profile_rng.standard_normal(
-                indices.size
-            )
+            elevation = elevation + scenario.profile_noise_std * self._profile_rng.standard_normal(indices.size)
         return ProfileReadings(times, distance, elevation)
 
 
@@ -869,9 +855,8 @@ def simulate(
         values = [getattr(truth, name) for truth in truths]
         return None if values[0] is None else np.array(values)
 
-    truth = QuarterCarTruth(
-        **{name: truth_array(name) for name in QuarterCarTruth.__dataclass_fields__}
-    )
+    # The per-sample truth fields stacked into arrays (the dataclass allows both).
+    truth = QuarterCarTruth(**{name: truth_array(name) for name in QuarterCarTruth.__dataclass_fields__})  # type: ignore[arg-type]
     return SimulationResult(
         vehicle=vehicle,
         scenario=scenario,

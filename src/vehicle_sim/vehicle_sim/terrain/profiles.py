@@ -81,9 +81,7 @@ ISO8608_WAVINESS = 2.0
 
 ISO8608_CLASSES = ("A", "B", "C", "D", "E", "F", "G", "H")
 
-ISO8608_GD_N0: Mapping[str, float] = MappingProxyType(
-    {cls: 16e-6 * 4**i for i, cls in enumerate(ISO8608_CLASSES)}
-)
+ISO8608_GD_N0: Mapping[str, float] = MappingProxyType({cls: 16e-6 * 4**i for i, cls in enumerate(ISO8608_CLASSES)})
 """Class geometric-mean G_d(n0) (m³): A 16e-6, B 64e-6, …, H 262144e-6 (MODELS.md A.8)."""
 
 DEFAULT_BAND = (0.05, 10.0)
@@ -137,9 +135,7 @@ class RoadProfile:
     name: str = "profile"
     description: str = ""
 
-    def elevation_and_slope(
-        self, distance: ArrayLike
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def elevation_and_slope(self, distance: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Elevation h (m) and slope dh/ds (dimensionless) at distances s (m).
 
         Args:
@@ -180,9 +176,7 @@ class FlatProfile(RoadProfile):
     name = "flat"
     description = "flat road, h = 0"
 
-    def elevation_and_slope(
-        self, distance: ArrayLike
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def elevation_and_slope(self, distance: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         zeros = np.zeros(np.shape(distance))
         return zeros, zeros.copy()
 
@@ -236,9 +230,9 @@ class HarmonicProfile(RoadProfile):
         self.name = name
         self.description = description
         self._wavenumbers = 2.0 * np.pi * freqs  # rad/m
-        self._rotation_cache: OrderedDict[
-            tuple[float, int], tuple[NDArray[np.float64], NDArray[np.float64]]
-        ] = OrderedDict()
+        self._rotation_cache: OrderedDict[tuple[float, int], tuple[NDArray[np.float64], NDArray[np.float64]]] = (
+            OrderedDict()
+        )
 
     @property
     def n_harmonics(self) -> int:
@@ -250,9 +244,7 @@ class HarmonicProfile(RoadProfile):
         """Exact rms of h over an infinite road (m): √(Σ A_i²/2)."""
         return float(np.sqrt(0.5 * np.sum(self.amplitudes**2)))
 
-    def elevation_and_slope(
-        self, distance: ArrayLike
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def elevation_and_slope(self, distance: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         s = np.asarray(distance, dtype=float)
         flat = s.ravel()
         h = np.empty(flat.size)
@@ -314,9 +306,7 @@ class HarmonicProfile(RoadProfile):
             dh[lo : lo + m] = -(p[:, 3] + q[:, 2])
         return h, dh
 
-    def _rotation(
-        self, spacing: float, block: int
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def _rotation(self, spacing: float, block: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         key = (spacing, block)
         rotation = self._rotation_cache.get(key)
         if rotation is None:
@@ -393,16 +383,15 @@ def power_law_profile(
         if length is None or not length > 0.0:
             raise ValueError("spacing='uniform' needs a profile length L > 0 (m)")
         dn = 1.0 / length
-        freqs = n_min + dn * np.arange(int(math.floor((n_max - n_min) / dn + 1e-9)) + 1)
-        amps = np.sqrt(2.0 * psd(freqs) * dn)  # Agostinacchio et al. 2014
+        freqs = np.asarray(n_min + dn * np.arange(int(math.floor((n_max - n_min) / dn + 1e-9)) + 1), dtype=np.float64)
+        amps = np.asarray(np.sqrt(2.0 * psd(freqs) * dn), dtype=np.float64)  # Agostinacchio et al. 2014
         grid = f"{freqs.size} harmonics at Δn = 1/{length:g} m"
     else:
         raise ValueError(f"spacing must be 'log' or 'uniform', got {spacing!r}")
     phases = rng.uniform(0.0, 2.0 * np.pi, freqs.size)
     if not description:
         description = (
-            f"G_d(n0={n0:g})={gd_n0:.6g} m^3, w={waviness:g}, band {n_min:g}-{n_max:g} "
-            f"cycles/m, {grid}, seed {seed}"
+            f"G_d(n0={n0:g})={gd_n0:.6g} m^3, w={waviness:g}, band {n_min:g}-{n_max:g} cycles/m, {grid}, seed {seed}"
         )
     return HarmonicProfile(freqs, amps, phases, name=name, description=description)
 
@@ -478,9 +467,7 @@ def meadow_c_standin(
         length=length,
         name="meadow_c_standin",
     )
-    profile.description = (
-        "Meadow-c stand-in (Ohmiya 1986 PSD not found): ISO 8608 class E, " + profile.description
-    )
+    profile.description = "Meadow-c stand-in (Ohmiya 1986 PSD not found): ISO 8608 class E, " + profile.description
     return profile
 
 

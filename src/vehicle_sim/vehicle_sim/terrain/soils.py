@@ -107,9 +107,7 @@ TABLE1_SOILS: tuple[Soil, ...] = (
 )
 """The five soils of the paper's Table 1, in the table's order."""
 
-SOILS: Mapping[str, Soil] = MappingProxyType(
-    {soil.name: soil for soil in (*TABLE1_SOILS, LUNAR_REGOLITH)}
-)
+SOILS: Mapping[str, Soil] = MappingProxyType({soil.name: soil for soil in (*TABLE1_SOILS, LUNAR_REGOLITH)})
 """Every known soil by :attr:`Soil.name` (read-only)."""
 
 
@@ -170,9 +168,9 @@ def k_tot(k_s: ArrayLike, k: ArrayLike) -> NDArray[np.float64] | float:
     k_s_arr = np.asarray(k_s, dtype=float)
     k_arr = np.asarray(k, dtype=float)
     if np.any(~(k_s_arr > 0.0)):
-        raise ValueError(f"k_s must be > 0 N/m (inf allowed for rigid ground), got {k_s}")
+        raise ValueError(f"k_s must be > 0 N/m (inf allowed for rigid ground), got {k_s!r}")
     if np.any(~(k_arr > 0.0)) or np.any(~np.isfinite(k_arr)):
-        raise ValueError(f"series stiffness k must be finite and > 0 N/m, got {k}")
+        raise ValueError(f"series stiffness k must be finite and > 0 N/m, got {k!r}")
     # Written as k / (1 + k/k_s) so that k_s = inf gives exactly k.
     result = k_arr / (1.0 + k_arr / k_s_arr)
     return float(result) if result.ndim == 0 else result
@@ -198,12 +196,11 @@ def k_s_from_k_tot(k_tot: ArrayLike, k: ArrayLike) -> NDArray[np.float64] | floa
     k_tot_arr = np.asarray(k_tot, dtype=float)
     k_arr = np.asarray(k, dtype=float)
     if np.any(~(k_arr > 0.0)) or np.any(~np.isfinite(k_arr)):
-        raise ValueError(f"series stiffness k must be finite and > 0 N/m, got {k}")
+        raise ValueError(f"series stiffness k must be finite and > 0 N/m, got {k!r}")
     valid = (k_tot_arr > 0.0) & (k_tot_arr < k_arr)
     if not np.all(valid):
         raise ValueError(
-            f"k_tot must satisfy 0 < k_tot < k for a finite positive k_s; "
-            f"got k_tot={k_tot} N/m with k={k} N/m"
+            f"k_tot must satisfy 0 < k_tot < k for a finite positive k_s; got k_tot={k_tot!r} N/m with k={k!r} N/m"
         )
     result = k_tot_arr * k_arr / (k_arr - k_tot_arr)
     return float(result) if result.ndim == 0 else result
@@ -225,7 +222,7 @@ def k_s_error_amplification(k_tot: ArrayLike, k: ArrayLike) -> NDArray[np.float6
     k_tot_arr = np.asarray(k_tot, dtype=float)
     k_arr = np.asarray(k, dtype=float)
     if not np.all((k_tot_arr > 0.0) & (k_tot_arr < k_arr)):
-        raise ValueError(f"need 0 < k_tot < k, got k_tot={k_tot}, k={k}")
+        raise ValueError(f"need 0 < k_tot < k, got k_tot={k_tot!r}, k={k!r}")
     result = k_arr / (k_arr - k_tot_arr)
     return float(result) if result.ndim == 0 else result
 
@@ -356,9 +353,7 @@ def bekker_pressure(sinkage: ArrayLike, width: float, params: BekkerParameters) 
     return (params.k_c / width + params.k_phi) * z**params.n
 
 
-def rigid_wheel_load(
-    sinkage: ArrayLike, diameter: float, width: float, params: BekkerParameters
-) -> ArrayLike:
+def rigid_wheel_load(sinkage: ArrayLike, diameter: float, width: float, params: BekkerParameters) -> ArrayLike:
     """Load carried by a rigid wheel at a given sinkage (Bekker 1969).
 
     W(z) = ((3 − n)(k_c + b k_phi) √D / 3) · z^((2n+1)/2), the load-sinkage law of
@@ -379,9 +374,7 @@ def rigid_wheel_load(
     return coeff * z ** ((2.0 * n + 1.0) / 2.0)
 
 
-def rigid_wheel_static_sinkage(
-    load: float, diameter: float, width: float, params: BekkerParameters
-) -> float:
+def rigid_wheel_static_sinkage(load: float, diameter: float, width: float, params: BekkerParameters) -> float:
     """Static sinkage of a rigid wheel (Bekker): z0 = [3W/((3−n)(k_c + b k_phi)√D)]^(2/(2n+1)).
 
     Args:
@@ -398,9 +391,7 @@ def rigid_wheel_static_sinkage(
     return base ** (2.0 / (2.0 * n + 1.0))
 
 
-def rigid_wheel_equivalent_stiffness(
-    load: float, diameter: float, width: float, params: BekkerParameters
-) -> float:
+def rigid_wheel_equivalent_stiffness(load: float, diameter: float, width: float, params: BekkerParameters) -> float:
     """Linearised rigid-wheel soil stiffness k_s = dW/dz at z0 = ((2n+1)/2) W/z0.
 
     MODELS.md A.2: with the unverified tabulated Bekker parameters this does not
@@ -420,9 +411,7 @@ def rigid_wheel_equivalent_stiffness(
     return (2.0 * params.n + 1.0) / 2.0 * load / z0
 
 
-def flat_contact_static_sinkage(
-    ground_pressure: float, width: float, params: BekkerParameters
-) -> float:
+def flat_contact_static_sinkage(ground_pressure: float, width: float, params: BekkerParameters) -> float:
     """Sinkage of a flexible tire in the elastic mode: z0 = (p_g/(k_c/b + k_phi))^(1/n).
 
     Args:

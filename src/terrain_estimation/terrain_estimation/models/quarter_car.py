@@ -1,0 +1,686 @@
+"""Estimation models for soil stiffness from ride vibration (MODELS.md Part A).
+
+Two models implement :class:`~terrain_estimation.filters.base.StateSpaceModel`
+and :class:`~terrain_estimation.filters.base.JacobianModel`:
+
+* :class:`QuarterCarModel` — the 2-DOF quarter car of Reina, Leanza, Messina
+  (P-4…P-9, appendix A.1–A.4): ``x = [y1 − y2, ẏ1, y2 − h, ẏ2, k_tot]``,
+  ``z = [ÿ1, ÿ2]``.
+* :class:`LRVModel` — the 1-DOF Lunar Roving Vehicle (section 5.3, MODELS.md
+  A.7): ``x = [y1 − h, ẏ1, k_tot]``, ``z = [ÿ1]``.
+
+Both are bilinear: ``ẋ = A(x) x + B u + G w`` with ``A(x) = A0 + k_tot·E``,
+where ``E`` has a single non-zero entry (−1/m_ns at [4, 3] for the quarter car,
+−1/m_s at [2, 1] for the LRV, 1-based) and the k_tot row of ``A`` is zero
+(random-walk parameter). ``z = C(x) x + D u`` with ``C(x)`` the acceleration
+rows of ``A(x)`` (A.4) and ``D`` the same rows of ``B`` (zero except for the
+LRV relative-damper option).
+
+**Input between filter steps (MODELS.md A.10).** ``u`` for one filter step of
+length ``dt`` is a 1-D array of the terrain elevation rate ḣ (m/s) over ``N``
+equal sub-steps spanning ``dt`` (a scalar means ``N = 1``). ``f`` applies the
+discrete transition sub-step by sub-step, ``x_{j+1} = Φ(k) x_j + Γ(k) B u_j``,
+with ``Φ = e^{Aδ}``, ``Γ = ∫0^δ e^{As} ds`` (P-11…P-13) evaluated per point
+(``(m, n, n)`` batches). Holding ḣ constant over a sub-step is exact for an
+elevation that is piecewise linear between the sub-step grid points, which
+is what the estimator reconstructs from a 1 kHz profile; with ``N = 1`` this
+is the paper's zero-order hold over the whole 10 ms step, which biases k_tot
+by +2…3 % against a smooth road (A.10.1).
+
+**Discretisation.** ``"taylor4"`` is the paper's fourth-order series
+(``A_k = Σ_{j≤4} (Aδ)^j/j!``, ``Γ_k = Σ_{j≤4} A^j δ^{j+1}/(j+1)!``);
+``"expm"`` is the exact matrix exponential (augmented-matrix form). The local
+truncation error of the series is ``≈ ρ(Aδ)^5/5!``: with ρ(A) ≈ 60 rad/s (wheel
+hop) it is ≈ 6·10⁻⁴ at δ = 10 ms (the −0.09 % k_tot bias of A.10.2) and
+≈ 6·10⁻⁹ at the 1 ms sub-steps, hence the default ``"taylor4"``.
+
+**Keeping k_tot physical.** k_tot is the series stiffness of tire (or LRV
+spring) and soil, so it lies in ``(0, k_series)``. Inside every model
+evaluation (f, h, Jacobians, Q) the k_tot *used by the dynamics* is clamped to
+``[ktot_min_frac·k_series, ktot_max_frac·k_series]``; the k_tot *state*
+itself passes through ``f`` unchanged (exact random walk, row 5 of A.1 is
+zero), so cubature points outside the range keep their spread and the
+filter's covariance is not distorted. The clamped dynamics are stable and
+finite for every finite input, so no NaN is produced. In the Jacobians the
+derivative with respect to a clamped k_tot is zero, consistent with ``f``.
+The estimator (``estimators.soil_stiffness``) additionally projects the
+posterior mean into the same range.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import scipy.linalg
+
+from terrain_estimation.filters.base import Array
+
+__all__ = [
+    "QuarterCarParams",
+    "LRVParams",
+    "QuarterCarModel",
+    "LRVModel",
+    "discretise",
+    "substep_inputs",
+    "hdot_at_end",
+]
+
+Discretisation = Literal["taylor4", "expm"]
+KtotNoiseForm = Literal["per_step", "printed"]
+JacobianForm = Literal["exact", "paper"]
+
+
+def _check_common(
+    q_diag: tuple[float, ...],
+    r_diag: tuple[float, ...],
+    n: int,
+    p: int,
+    q_ktot_per_step: float,
+    ktot_step_dt: float,
+    ktot_noise_form: str,
+    discretisation: str,
+    ekf_jacobian: str,
+    ktot_min_frac: float,
+    ktot_max_frac: float,
+) -> None:
+    if len(q_diag) != n or any(not np.isfinite(q) or q < 0 for q in q_diag):
+        raise ValueError(f"q_diag must hold {n} finite non-negative variances, got {q_diag}")
+    if len(r_diag) != p or any(not np.isfinite(r) or r <= 0 for r in r_diag):
+        raise ValueError(f"r_diag must hold {p} finite positive variances, got {r_diag}")
+    if not (np.isfinite(q_ktot_per_step) and q_ktot_per_step >= 0):
+        raise ValueError("q_ktot_per_step must be finite and >= 0")
+    if not (np.isfinite(ktot_step_dt) and ktot_step_dt > 0):
+        raise ValueError("ktot_step_dt must be finite and > 0")
+    if ktot_noise_form not in ("per_step", "printed"):
+        raise ValueError(f"ktot_noise_form must be 'per_step'|'printed', got {ktot_noise_form!r}")
+    if discretisation not in ("taylor4", "expm"):
+        raise ValueError(f"discretisation must be 'taylor4' or 'expm', got {discretisation!r}")
+    if ekf_jacobian not in ("exact", "paper"):
+        raise ValueError(f"ekf_jacobian must be 'exact' or 'paper', got {ekf_jacobian!r}")
+    if not (0.0 < ktot_min_frac < ktot_max_frac < 1.0):
+        raise ValueError("need 0 < ktot_min_frac < ktot_max_frac < 1")
+
+
+@dataclass(frozen=True)
+class QuarterCarParams:
+    """Parameters of the 2-DOF estimation model (Table 2 and section 4 of [QC]).
+
+    Attributes:
+        m_s: sprung mass (kg).
+        m_ns: unsprung mass (kg).
+        k: suspension stiffness (N/m).
+        c: suspension damping (N·s/m).
+        k_t: tire stiffness (N/m); the series stiffness that bounds k_tot.
+        q_diag: continuous process-noise variances σ1²…σ5² of Q (P-9), units
+            m², (m/s)², m², (m/s)², (N/m)².
+        r_diag: accelerometer noise variances of R, (m/s²)².
+        q_ktot_per_step: k_tot random-walk variance added per filter step of
+            ``ktot_step_dt`` in the ``"per_step"`` form ((N/m)²); scales
+            linearly with the actual step (MODELS.md A.4).
+        ktot_step_dt: step length (s) that ``q_ktot_per_step`` refers to.
+        ktot_noise_form: ``"per_step"`` (recommended, A.4) or ``"printed"``
+            (k_tot entry of ``Q_k = Δt G_k Q G_kᵀ``, i.e. Δt³σ5²: cannot
+            re-adapt after a soil change).
+        discretisation: ``"taylor4"`` (paper, P-11) or ``"expm"`` (exact).
+        ekf_jacobian: ``"exact"`` (derivative of this model's discrete ``f``,
+            including ∂(B_k u)/∂k_tot) or ``"paper"`` (A_x discretised with the
+            same series, input term omitted, A.6).
+        ktot_min_frac: lower clamp of the k_tot used by the dynamics, as a
+            fraction of ``k_t``.
+        ktot_max_frac: upper clamp, fraction of ``k_t``.
+    """
+
+    m_s: float = 455.0
+    m_ns: float = 45.5
+    k: float = 25_000.0
+    c: float = 2_000.0
+    k_t: float = 175_000.0
+    q_diag: tuple[float, ...] = (1e-5, 1e-3, 1e-5, 1e-3, 1e5)
+    r_diag: tuple[float, ...] = (0.5, 0.5)
+    q_ktot_per_step: float = 1e3
+    ktot_step_dt: float = 0.01
+    ktot_noise_form: KtotNoiseForm = "per_step"
+    discretisation: Discretisation = "taylor4"
+    ekf_jacobian: JacobianForm = "exact"
+    ktot_min_frac: float = 1e-3
+    ktot_max_frac: float = 0.999
+
+    def __post_init__(self) -> None:
+        for name in ("m_s", "m_ns", "k", "k_t"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {value}")
+        if not (np.isfinite(self.c) and self.c >= 0):
+            raise ValueError(f"c must be finite and >= 0, got {self.c}")
+        _check_common(
+            tuple(self.q_diag),
+            tuple(self.r_diag),
+            5,
+            2,
+            self.q_ktot_per_step,
+            self.ktot_step_dt,
+            self.ktot_noise_form,
+            self.discretisation,
+            self.ekf_jacobian,
+            self.ktot_min_frac,
+            self.ktot_max_frac,
+        )
+
+    @property
+    def k_series(self) -> float:
+        """Stiffness in series with the soil (N/m): the tire, ``k_t``."""
+        return self.k_t
+
+
+@dataclass(frozen=True)
+class LRVParams:
+    """Parameters of the 1-DOF LRV estimation model (Table 5 of [QC], MODELS.md A.7).
+
+    Attributes:
+        m_s: lumped sprung + unsprung mass (kg).
+        k: combined suspension and tire stiffness (N/m); the series stiffness
+            that bounds k_tot (``k_tot = k k_s / (k + k_s)``).
+        c: damping (N·s/m).
+        relative_damper: False = literal reduction of the 2-DOF matrices
+            (damper on the absolute velocity ẏ1); True = physical damper on
+            ``ẏ1 − ḣ``, which adds ``+c/m_s`` to ``B[2]`` and the feed-through
+            ``+(c/m_s)·ḣ(t)`` to the measurement, ḣ(t) extrapolated to the
+            measurement time (:func:`hdot_at_end`).
+        q_diag: variances σ1², σ2², σ5² (m², (m/s)², (N/m)²); "process and
+            measurement noise unchanged" from the 2-DOF case.
+        r_diag: accelerometer variance ((m/s²)²).
+        q_ktot_per_step, ktot_step_dt, ktot_noise_form, discretisation,
+        ekf_jacobian, ktot_min_frac, ktot_max_frac: as in
+            :class:`QuarterCarParams` (fractions of ``k``).
+    """
+
+    m_s: float = 75.0
+    k: float = 15_000.0
+    c: float = 1_500.0
+    relative_damper: bool = False
+    q_diag: tuple[float, ...] = (1e-5, 1e-3, 1e5)
+    r_diag: tuple[float, ...] = (0.5,)
+    q_ktot_per_step: float = 1e3
+    ktot_step_dt: float = 0.01
+    ktot_noise_form: KtotNoiseForm = "per_step"
+    discretisation: Discretisation = "taylor4"
+    ekf_jacobian: JacobianForm = "exact"
+    ktot_min_frac: float = 1e-3
+    ktot_max_frac: float = 0.999
+
+    def __post_init__(self) -> None:
+        for name in ("m_s", "k"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {value}")
+        if not (np.isfinite(self.c) and self.c >= 0):
+            raise ValueError(f"c must be finite and >= 0, got {self.c}")
+        _check_common(
+            tuple(self.q_diag),
+            tuple(self.r_diag),
+            3,
+            1,
+            self.q_ktot_per_step,
+            self.ktot_step_dt,
+            self.ktot_noise_form,
+            self.discretisation,
+            self.ekf_jacobian,
+            self.ktot_min_frac,
+            self.ktot_max_frac,
+        )
+
+    @property
+    def k_series(self) -> float:
+        """Stiffness in series with the soil (N/m): the combined spring ``k``."""
+        return self.k
+
+
+# ---------------------------------------------------------------------------
+# Discretisation helpers (P-11…P-13)
+# ---------------------------------------------------------------------------
+
+
+def discretise(a: Array, delta: float, method: Discretisation) -> tuple[Array, Array]:
+    """Transition and input-integral matrices of ``ẋ = A x`` over one step.
+
+    Args:
+        a: continuous matrices ``A``, shape ``(n, n)`` or ``(m, n, n)``.
+        delta: step length (s), > 0.
+        method: ``"taylor4"`` — the paper's truncated series (P-11, P-12):
+            ``Φ = Σ_{j=0..4} (Aδ)^j/j!``, ``Γ = Σ_{j=0..4} A^j δ^{j+1}/(j+1)!``;
+            ``"expm"`` — exact, from ``exp([[Aδ, Iδ], [0, 0]])`` whose blocks
+            are ``Φ = e^{Aδ}`` and ``Γ = ∫0^δ e^{As} ds``.
+
+    Returns:
+        ``(Φ, Γ)``, each with the shape of ``a``. ``B_k = Γ B``, ``G_k = Γ G``.
+    """
+    a = np.asarray(a, dtype=float)
+    n = a.shape[-1]
+    eye = np.eye(n)
+    ad = a * delta
+    if method == "taylor4":
+        # Horner form of the two truncated series: 4 + 4 matrix products.
+        phi = eye + ad / 4.0
+        phi = eye + ad @ phi / 3.0
+        phi = eye + ad @ phi / 2.0
+        phi = eye + ad @ phi
+        gam = eye + ad / 5.0
+        gam = eye + ad @ gam / 4.0
+        gam = eye + ad @ gam / 3.0
+        gam = eye + ad @ gam / 2.0
+        return phi, gam * delta
+    if method == "expm":
+        big = np.zeros(a.shape[:-2] + (2 * n, 2 * n))
+        big[..., :n, :n] = ad
+        big[..., :n, n:] = eye * delta
+        e = scipy.linalg.expm(big)
+        return e[..., :n, :n], e[..., :n, n:]
+    raise ValueError(f"unknown discretisation {method!r}")
+
+
+def _discretise_with_input(
+    a: Array,
+    b: Array,
+    delta: float,
+    method: Discretisation,
+) -> tuple[Array, Array]:
+    """``(Φ, Γ b)`` for a batch ``a`` ``(m, n, n)`` and one input vector ``b`` ``(n,)``.
+
+    The exact form needs only the ``(n+1)``-augmented exponential
+    ``exp([[Aδ, bδ], [0, 0]])``, cheaper than the ``2n`` block of
+    :func:`discretise`.
+    """
+    if method == "taylor4":
+        phi, gam = discretise(a, delta, method)
+        return phi, gam @ b
+    n = a.shape[-1]
+    aug = np.zeros(a.shape[:-2] + (n + 1, n + 1))
+    aug[..., :n, :n] = a * delta
+    aug[..., :n, n] = b * delta
+    e = scipy.linalg.expm(aug)
+    return e[..., :n, :n], e[..., :n, n]
+
+
+def substep_inputs(u: Any) -> Array:
+    """Normalise a model input to the ``(N,)`` array of sub-step ḣ values (m/s).
+
+    A scalar (or ``None``, read as ḣ = 0) is one sub-step spanning the whole
+    filter step. Non-finite entries are replaced by 0 so that a bad input
+    sample can never turn a state into NaN.
+    """
+    if u is None:
+        return np.zeros(1)
+    arr = np.atleast_1d(np.asarray(u, dtype=float)).ravel()
+    if arr.size == 0:
+        return np.zeros(1)
+    if not np.all(np.isfinite(arr)):
+        arr = np.where(np.isfinite(arr), arr, 0.0)
+    return arr
+
+
+def hdot_at_end(u: Any) -> float:
+    """ḣ at the end of the step (the measurement time) from the sub-step means (m/s).
+
+    ``u_j`` is the mean slope over sub-step j, i.e. ḣ at its midpoint to second
+    order; the end value is extrapolated linearly from the last two midpoints,
+    ``1.5 u_{N−1} − 0.5 u_{N−2}``. Holding ``u_{N−1}`` instead lags ḣ by half a
+    sub-step, which matters where ḣ feeds the measurement directly (LRV
+    relative damper: c/m_s·ḣ dominates ÿ1 above the body mode, and the lag
+    biased k_s by −6 % on ISO G at 2 m/s).
+    """
+    us = substep_inputs(u)
+    if us.size < 2:
+        return float(us[-1])
+    return float(1.5 * us[-1] - 0.5 * us[-2])
+
+
+# ---------------------------------------------------------------------------
+# Shared bilinear model
+# ---------------------------------------------------------------------------
+
+
+class _BilinearKtotModel:
+    """``ẋ = (A0 + k_tot E) x + B u + G w``, ``z = C(x) x + D u`` with k_tot the last state.
+
+    Subclasses fill the constant matrices in ``__init__``. All public methods
+    accept one state ``(n,)`` or a point set ``(m, n)``.
+    """
+
+    _a0: Array
+    _e: Array
+    _b: Array
+    _g: Array
+    _rows: Array
+    _sigma_q: Array
+    _sqrt_r: Array
+    _k_series: float
+    _kmin: float
+    _kmax: float
+    _method: Discretisation
+    _noise_form: KtotNoiseForm
+    _q_ktot_per_step: float
+    _ktot_step_dt: float
+    _jacobian_form: JacobianForm
+
+    def _finish_init(self) -> None:
+        n = self._a0.shape[0]
+        k = n - 1
+        # The decoupling that lets √Q_k be written column by column (A.4):
+        # row and column k of G are the unit vector e_k, and column k of A is
+        # zero for every k_tot (k_tot enters A only through E's single entry).
+        e_k = np.zeros(n)
+        e_k[k] = 1.0
+        assert np.array_equal(self._g[:, k], e_k) and np.array_equal(self._g[k, :], e_k)
+        assert not np.any(self._a0[k, :]) and not np.any(self._e[k, :])
+        assert not np.any(self._a0[:, k]) and not np.any(self._e[:, k])
+        assert self._b[k] == 0.0
+        self._c0 = self._a0[self._rows]
+        self._ce = self._e[self._rows]
+        self._d = self._b[self._rows]
+        self._noise_cache: tuple[float, float, Array] | None = None
+
+    # -- protocol -----------------------------------------------------------
+    @property
+    def state_dim(self) -> int:
+        """Number of states ``n``."""
+        return int(self._a0.shape[0])
+
+    @property
+    def measurement_dim(self) -> int:
+        """Number of measured accelerations ``p``."""
+        return int(self._rows.size)
+
+    @property
+    def k_series(self) -> float:
+        """Stiffness in series with the soil (N/m); k_tot lies in ``(0, k_series)``."""
+        return self._k_series
+
+    @property
+    def ktot_bounds(self) -> tuple[float, float]:
+        """Clamp range of the k_tot used inside the model (N/m)."""
+        return self._kmin, self._kmax
+
+    @property
+    def B(self) -> Array:  # noqa: N802 - the symbol of the paper
+        """Input vector ``B`` ``(n,)`` (A.2)."""
+        return self._b.copy()
+
+    @property
+    def G(self) -> Array:  # noqa: N802
+        """Process-noise input matrix ``G`` ``(n, n)`` (A.3)."""
+        return self._g.copy()
+
+    def clamp_ktot(self, k_tot: Any) -> Array:
+        """k_tot used by the dynamics: clipped into :attr:`ktot_bounds` (N/m)."""
+        return np.clip(np.asarray(k_tot, dtype=float), self._kmin, self._kmax)
+
+    def A(self, x: Array) -> Array:  # noqa: N802
+        """Continuous state matrix ``A(x)`` (A.1) with the clamped k_tot.
+
+        Args:
+            x: state ``(n,)`` or points ``(m, n)``.
+
+        Returns:
+            ``(n, n)`` or ``(m, n, n)``.
+        """
+        x = np.asarray(x, dtype=float)
+        k = self.clamp_ktot(x[..., -1])
+        return self._a0 + k[..., None, None] * self._e
+
+    def C(self, x: Array) -> Array:  # noqa: N802
+        """Measurement matrix ``C(x)``: the acceleration rows of ``A(x)`` (A.4).
+
+        Returns:
+            ``(p, n)`` or ``(m, p, n)``.
+        """
+        return self.A(x)[..., self._rows, :]
+
+    def continuous_derivative(self, x: Array, u: Any = 0.0) -> Array:
+        """``ẋ = A(x) x + B u`` (P-8) for a scalar input ḣ (m/s); ``(n,)`` or ``(m, n)``."""
+        x = np.asarray(x, dtype=float)
+        return (self.A(x) @ x[..., None])[..., 0] + self._b * float(u)
+
+    def f(self, x: Array, u: Any, dt: float) -> Array:
+        """Propagate over one filter step through the sub-steps of ``u`` (P-13, A.10).
+
+        Args:
+            x: state ``(n,)`` or points ``(m, n)``.
+            u: ḣ (m/s) on ``N`` equal sub-steps spanning ``dt``, ``(N,)``; a
+                scalar is one sub-step.
+            dt: filter step (s), > 0.
+
+        Returns:
+            Propagated state(s), same shape as ``x``. The k_tot component is
+            passed through unchanged (random walk); the dynamics use the
+            clamped k_tot of each point.
+        """
+        x = np.asarray(x, dtype=float)
+        single = x.ndim == 1
+        pts = np.atleast_2d(x)
+        us = substep_inputs(u)
+        delta = float(dt) / us.size
+        phi, gb = _discretise_with_input(self.A(pts), self._b, delta, self._method)
+        y = pts.copy()
+        for uj in us:
+            y = (phi @ y[:, :, None])[:, :, 0] + gb * uj
+        y[:, -1] = pts[:, -1]  # k_tot: exact random walk (row 5 of A.1 is zero)
+        return y[0] if single else y
+
+    def h(self, x: Array, u: Any = None) -> Array:
+        """Predicted accelerations ``z = C(x) x + D ḣ`` (P-9, A.4) in m/s².
+
+        Args:
+            x: state ``(n,)`` or points ``(m, n)``.
+            u: the step's sub-step ḣ; its end value (:func:`hdot_at_end`, ḣ at
+                the measurement time) feeds the LRV relative-damper term.
+                Ignored otherwise.
+
+        Returns:
+            ``(p,)`` or ``(m, p)``.
+        """
+        x = np.asarray(x, dtype=float)
+        k = self.clamp_ktot(x[..., -1])
+        z = x @ self._c0.T + k[..., None] * (x @ self._ce.T)
+        if np.any(self._d):
+            z = z + self._d * hdot_at_end(u)
+        return z
+
+    def measurement_noise_sqrt(self) -> Array:
+        """``√R`` ``(p, p)`` (diagonal, P-9)."""
+        return np.diag(self._sqrt_r)
+
+    def process_noise_sqrt(self, x: Array, u: Any, dt: float) -> Array:
+        """Square-root factor ``L`` of ``Q_k`` over one filter step, ``(n, n)`` (A.4).
+
+        Motion states: ``√Δt · Γ_k(Δt) G diag(σ)`` (the printed
+        ``Q_k ≈ Δt G_k Q G_kᵀ``, G_k over the whole filter step ``Δt = dt``)
+        evaluated at the clamped k_tot of ``x`` (the mean; for a point set
+        the mean of the points). k_tot column: ``√(q_ktot_per_step ·
+        dt/ktot_step_dt) e_k`` in the ``"per_step"`` form, ``√Δt · Δt · σ_k e_k``
+        in the ``"printed"`` one (exact, since Γ_k e_k = Δt e_k).
+        """
+        x = np.asarray(x, dtype=float)
+        k_mean = float(np.mean(x[..., -1])) if x.size else 0.0
+        k_c = float(self.clamp_ktot(k_mean)) if np.isfinite(k_mean) else self._kmin
+        dt = float(dt)
+        cache = self._noise_cache
+        if cache is not None and cache[0] == dt and cache[1] == k_c:
+            return cache[2].copy()
+        a = self._a0 + k_c * self._e
+        _, gam = discretise(a, dt, self._method)
+        lq = np.sqrt(dt) * (gam @ self._g) * self._sigma_q
+        if self._noise_form == "per_step":
+            lq[:, -1] = 0.0
+            lq[-1, -1] = np.sqrt(self._q_ktot_per_step * dt / self._ktot_step_dt)
+        else:
+            lq[:, -1] = 0.0
+            lq[-1, -1] = np.sqrt(dt) * dt * self._sigma_q[-1]
+        self._noise_cache = (dt, k_c, lq)
+        return lq.copy()
+
+    # -- Jacobians (EKF, A.6) -------------------------------------------------
+    def _clamp_slope(self, k: float) -> float:
+        return 1.0 if self._kmin < k < self._kmax else 0.0
+
+    def transition_jacobian(self, x: Array, u: Any, dt: float) -> Array:
+        """``∂f/∂x`` at one state ``(n,)``, shape ``(n, n)``.
+
+        ``"exact"``: the derivative of this model's discrete ``f`` through all
+        sub-steps, ``J_{j+1} = Φ J_j + (∂Φ/∂k x_j + ∂Γ/∂k B u_j) ∂k/∂x``,
+        including the ``∂(B_k u)/∂k_tot`` term the paper omits (A.10.3). The
+        k-derivatives of Φ and Γ come from discretising the block matrix
+        ``[[A, E], [0, A]]`` with the same method (its upper-right blocks are
+        the directional derivatives, exactly for the truncated series too).
+
+        ``"paper"``: the product over sub-steps of ``A_x(x_j)`` discretised by
+        the same series, ``A_x = ∂(A(x)x)/∂x`` (A.6), input term omitted.
+        """
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.state_dim,):
+            raise ValueError(f"x must have shape ({self.state_dim},), got {x.shape}")
+        us = substep_inputs(u)
+        delta = float(dt) / us.size
+        n = self.state_dim
+        k_raw = float(x[-1])
+        k = float(self.clamp_ktot(k_raw))
+        slope = self._clamp_slope(k_raw)
+        a = self._a0 + k * self._e
+        jac = np.eye(n)
+        xj = x.copy()
+        if self._jacobian_form == "paper":
+            phi, gam = discretise(a, delta, self._method)
+            gb = gam @ self._b
+            for uj in us:
+                a_x = a.copy()
+                a_x[:, -1] += (self._e @ xj) * slope
+                phi_x, _ = discretise(a_x, delta, self._method)
+                jac = phi_x @ jac
+                xj = phi @ xj + gb * uj
+                xj[-1] = k_raw
+            return jac
+        block = np.zeros((2 * n, 2 * n))
+        block[:n, :n] = a
+        block[n:, n:] = a
+        block[:n, n:] = self._e
+        phi_b, gam_b = discretise(block, delta, self._method)
+        phi, dphi = phi_b[:n, :n], phi_b[:n, n:]
+        gb, dgb = gam_b[:n, :n] @ self._b, gam_b[:n, n:] @ self._b
+        for uj in us:
+            sens = (dphi @ xj + dgb * uj) * slope
+            jac = phi @ jac + np.outer(sens, jac[-1])
+            xj = phi @ xj + gb * uj
+            xj[-1] = k_raw
+        jac[-1] = 0.0
+        jac[-1, -1] = 1.0
+        return jac
+
+    def measurement_jacobian(self, x: Array, u: Any = None) -> Array:
+        """``∂h/∂x`` at one state ``(n,)``, shape ``(p, n)``: rows of ``A_x`` (A.6)."""
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.state_dim,):
+            raise ValueError(f"x must have shape ({self.state_dim},), got {x.shape}")
+        k_raw = float(x[-1])
+        k = float(self.clamp_ktot(k_raw))
+        hx = self._c0 + k * self._ce
+        hx[:, -1] += (self._ce @ x) * self._clamp_slope(k_raw)
+        return hx
+
+
+class QuarterCarModel(_BilinearKtotModel):
+    """2-DOF quarter car on deformable ground (P-4…P-9, appendix A.1–A.4).
+
+    State ``x = [y1 − y2, ẏ1, y2 − h, ẏ2, k_tot]`` (m, m/s, m, m/s, N/m),
+    input ``u = ḣ`` (m/s) per sub-step, measurement ``z = [ÿ1, ÿ2]`` (m/s²,
+    gravity removed).
+
+    Args:
+        params: vehicle and noise parameters (defaults: Table 2 and P-9).
+    """
+
+    def __init__(self, params: QuarterCarParams | None = None) -> None:
+        p = params if params is not None else QuarterCarParams()
+        self.params = p
+        ms, mns, k, c = p.m_s, p.m_ns, p.k, p.c
+        # (A.1) with the k_tot entry [4, 3] (1-based) split off into E.
+        self._a0 = np.array(
+            [
+                [0.0, 1.0, 0.0, -1.0, 0.0],
+                [-k / ms, -c / ms, 0.0, c / ms, 0.0],
+                [0.0, 0.0, 0.0, 1.0, 0.0],
+                [k / mns, c / mns, 0.0, -c / mns, 0.0],
+                [0.0, 0.0, 0.0, 0.0, 0.0],
+            ]
+        )
+        self._e = np.zeros((5, 5))
+        self._e[3, 2] = -1.0 / mns
+        self._b = np.array([0.0, 0.0, -1.0, 0.0, 0.0])  # (A.2)
+        self._g = np.array(  # (A.3)
+            [
+                [0.0, 1.0, 0.0, 1.0, 0.0],
+                [1.0, 1.0, 0.0, 1.0, 0.0],
+                [0.0, 0.0, 0.0, 1.0, 0.0],
+                [1.0, 1.0, 1.0, 1.0, 0.0],
+                [0.0, 0.0, 0.0, 0.0, 1.0],
+            ]
+        )
+        self._rows = np.array([1, 3])  # (A.4): rows 2 and 4 of A(x)
+        self._sigma_q = np.sqrt(np.asarray(p.q_diag, dtype=float))
+        self._sqrt_r = np.sqrt(np.asarray(p.r_diag, dtype=float))
+        self._k_series = p.k_t
+        self._kmin = p.ktot_min_frac * p.k_t
+        self._kmax = p.ktot_max_frac * p.k_t
+        self._method = p.discretisation
+        self._noise_form = p.ktot_noise_form
+        self._q_ktot_per_step = p.q_ktot_per_step
+        self._ktot_step_dt = p.ktot_step_dt
+        self._jacobian_form = p.ekf_jacobian
+        self._finish_init()
+
+
+class LRVModel(_BilinearKtotModel):
+    """1-DOF Lunar Roving Vehicle model (section 5.3 of [QC], MODELS.md A.7).
+
+    State ``x = [y1 − h, ẏ1, k_tot]``, input ``u = ḣ`` per sub-step,
+    measurement ``z = [ÿ1]``. ``A``, ``B``, ``G`` are the literal reduction of
+    the 2-DOF matrices (rows/columns 1, 2, 5 with the stiffness entry made the
+    k_tot state); with ``relative_damper`` the damper acts on ``ẏ1 − ḣ``.
+
+    Args:
+        params: vehicle and noise parameters (defaults: Table 5).
+    """
+
+    def __init__(self, params: LRVParams | None = None) -> None:
+        p = params if params is not None else LRVParams()
+        self.params = p
+        ms, c = p.m_s, p.c
+        self._a0 = np.array(
+            [
+                [0.0, 1.0, 0.0],
+                [0.0, -c / ms, 0.0],
+                [0.0, 0.0, 0.0],
+            ]
+        )
+        self._e = np.zeros((3, 3))
+        self._e[1, 0] = -1.0 / ms
+        self._b = np.array([-1.0, c / ms if p.relative_damper else 0.0, 0.0])
+        self._g = np.array(
+            [
+                [0.0, 1.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [0.0, 0.0, 1.0],
+            ]
+        )
+        self._rows = np.array([1])
+        self._sigma_q = np.sqrt(np.asarray(p.q_diag, dtype=float))
+        self._sqrt_r = np.sqrt(np.asarray(p.r_diag, dtype=float))
+        self._k_series = p.k
+        self._kmin = p.ktot_min_frac * p.k
+        self._kmax = p.ktot_max_frac * p.k
+        self._method = p.discretisation
+        self._noise_form = p.ktot_noise_form
+        self._q_ktot_per_step = p.q_ktot_per_step
+        self._ktot_step_dt = p.ktot_step_dt
+        self._jacobian_form = p.ekf_jacobian
+        self._finish_init()

@@ -1,0 +1,69 @@
+"""Executable of the estimator nodes: ``terrain-estimator-node --vehicle V``.
+
+Loads ``config/<vehicle>.yaml`` (or ``--config``) as parameter overrides,
+under the vehicle's default namespace unless ``--ros-args -r __ns:=/x`` says
+otherwise; any ``--ros-args`` (``-p name:=value``, ``--params-file``) apply on
+top, as for every ROS 2 node.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+import rclpy
+from rclpy.parameter import Parameter
+
+from terrain_estimation.params import ParameterError, load_parameter_file
+from terrain_estimation.ros.framework import EstimatorNode, spin_node
+from terrain_estimation.vehicles import VEHICLES, get_vehicle
+
+__all__ = ["make_estimator_node", "main"]
+
+
+def make_estimator_node(
+    vehicle: str,
+    *,
+    namespace: str | None = None,
+    config: str | None = None,
+    overrides: dict[str, object] | None = None,
+    **node_kwargs: object,
+) -> EstimatorNode:
+    """Build the estimator node of ``vehicle`` with its config file applied."""
+    entry = get_vehicle(vehicle)
+    path = config or entry.config_path()
+    values = load_parameter_file(path, [entry.node_name]) if config or entry.config_path().exists() else {}
+    values.update(overrides or {})
+    params = [Parameter(name, value=value) for name, value in values.items()]
+    return EstimatorNode(
+        entry.node_name,
+        entry.specs,
+        entry.make_adapter,
+        namespace=namespace if namespace is not None else entry.namespace,
+        parameter_overrides=params,
+        **node_kwargs,
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args_in = list(sys.argv[1:] if argv is None else argv)
+    ros_args = args_in[args_in.index("--ros-args") :] if "--ros-args" in args_in else []
+    own = args_in[: len(args_in) - len(ros_args)]
+    parser = argparse.ArgumentParser(prog="terrain-estimator-node", description=__doc__.splitlines()[0])
+    parser.add_argument("--vehicle", required=True, choices=sorted(VEHICLES))
+    parser.add_argument("--config", help="parameter file (default: config/<vehicle>.yaml)")
+    args = parser.parse_args(own)
+    rclpy.init(args=["terrain-estimator-node", *ros_args])
+    try:
+        node = make_estimator_node(args.vehicle, config=args.config)
+    except (ParameterError, ValueError) as exc:
+        print(f"terrain-estimator-node: error: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    spin_node(node)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,395 @@
+"""Soil-stiffness estimator (quarter car 2-DOF and LRV 1-DOF): parameters and adapter.
+
+Topics (CONTRACT.md, quarter car section), relative to the vehicle namespace:
+
+* in: ``imu/body``, ``imu/wheel`` (2-DOF), ``terrain/profile``, ``joint_states``
+* out: ``soil_stiffness`` (terrain_msgs/SoilStiffness)
+
+The two accelerometers arrive as separate messages; the filter needs both of
+one instant, so they are paired by identical header stamps (the
+simulator and a hardware-synchronised IMU pair stamp them so). A body sample
+whose wheel partner has not arrived within ``estimator.pair_timeout`` of a
+newer sample is used alone (a body-only update) and counted in diagnostics.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from geometry_msgs.msg import PointStamped
+from sensor_msgs.msg import Imu, JointState
+
+from terrain_estimation.estimators.soil_stiffness import (
+    SoilStiffnessEstimate,
+    SoilStiffnessEstimator,
+    SoilStiffnessEstimatorConfig,
+)
+from terrain_estimation.models.quarter_car import LRVParams, QuarterCarParams
+from terrain_estimation.params import ParamSpec, ParamValue
+from terrain_estimation.ros.framework import AdapterHealth, TopicSpec
+from terrain_estimation.ros.time import sec_to_stamp, stamp_to_ns
+from terrain_msgs.msg import SoilStiffness
+
+__all__ = [
+    "VEHICLE_SPECS_QUARTER_CAR",
+    "VEHICLE_SPECS_LRV",
+    "PARAMETERS",
+    "SoilStiffnessAdapter",
+    "estimator_config",
+    "estimate_to_msg",
+    "make_adapter",
+    "specs_for",
+]
+
+# Vehicle parameters, shared with the simulator (config/<vehicle>.yaml, "/**").
+VEHICLE_SPECS_QUARTER_CAR: tuple[ParamSpec, ...] = (
+    ParamSpec("vehicle.kind", "quarter_car", "model: 2-DOF quarter car", choices=("quarter_car",), read_only=True),
+    ParamSpec("vehicle.sprung_mass", 455.0, "[kg] sprung mass m_s (Table 2)", 1.0, 1e5),
+    ParamSpec("vehicle.unsprung_mass", 45.5, "[kg] unsprung mass m_ns (Table 2)", 0.1, 1e4),
+    ParamSpec("vehicle.suspension_stiffness", 25e3, "[N/m] suspension spring k (Table 2)", 1.0, 1e8),
+    ParamSpec("vehicle.suspension_damping", 2e3, "[N s/m] suspension damper c (Table 2)", 0.0, 1e7),
+    ParamSpec("vehicle.tire_stiffness", 175e3, "[N/m] tire stiffness k_t, in series with the soil (Table 2)", 1.0, 1e9),
+    ParamSpec("vehicle.wheel_radius", 0.3885, "[m] rolling radius (joint rate x radius = travel speed)", 0.01, 5.0),
+)
+VEHICLE_SPECS_LRV: tuple[ParamSpec, ...] = (
+    ParamSpec("vehicle.kind", "lrv", "model: 1-DOF Lunar Roving Vehicle", choices=("lrv",), read_only=True),
+    ParamSpec("vehicle.sprung_mass", 75.0, "[kg] lumped mass per wheel m_s (Table 5)", 1.0, 1e5),
+    ParamSpec(
+        "vehicle.suspension_stiffness",
+        15e3,
+        "[N/m] combined suspension and tire stiffness k, in series with the soil (Table 5)",
+        1.0,
+        1e8,
+    ),
+    ParamSpec("vehicle.suspension_damping", 1.5e3, "[N s/m] damper c (Table 5)", 0.0, 1e7),
+    ParamSpec("vehicle.wheel_radius", 0.508, "[m] rolling radius (D = 1.016 m)", 0.01, 5.0),
+    ParamSpec(
+        "vehicle.damper_reference",
+        "ground",
+        "what the damper acts against: 'ground' c(dy1 - dh), physical; "
+        "'inertial' c dy1, the paper's literal reduction of the 2-DOF matrices",
+        choices=("ground", "inertial"),
+    ),
+)
+
+
+def _filter_specs(kind: str) -> tuple[ParamSpec, ...]:
+    lrv = kind == "lrv"
+    # Section 4 of the paper; the LRV keeps states 1, 2 and 5 ("noise unchanged").
+    q_diag = [1e-5, 1e-3, 1e5] if lrv else [1e-5, 1e-3, 1e-5, 1e-3, 1e5]
+    # Not given by the paper; MODELS.md A.5 values (k_tot std: 0.29 of the series stiffness).
+    p0_diag = [1e-4, 1e-2, 4.3e3**2] if lrv else [1e-4, 1e-2, 1e-4, 1e-2, 50e3**2]
+    state = "[y1-h, dy1, k_tot]" if lrv else "[y1-y2, dy1, y2-h, dy2, k_tot]"
+    return _FILTER_SPECS + (
+        ParamSpec(
+            "filter.q_diag",
+            q_diag,
+            f"[SI^2] continuous process-noise variances of {state} (paper section 4)",
+            0.0,
+            1e15,
+        ),
+        ParamSpec("filter.p0_diag", p0_diag, f"[SI^2] initial covariance diagonal of {state}", 1e-15, 1e15),
+    )
+
+
+_FILTER_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec(
+        "filter.type",
+        "sckf",
+        "filter: square-root cubature (paper), cubature, unscented or extended KF",
+        choices=("sckf", "ckf", "ukf", "ekf"),
+    ),
+    ParamSpec("filter.rate", 100.0, "[Hz] filter rate; faster accelerometer samples are decimated", 1.0, 2000.0),
+    ParamSpec(
+        "filter.substep_rate",
+        1000.0,
+        "[Hz] rate of the road sub-steps each cubature point is propagated through (MODELS.md A.10)",
+        1.0,
+        100000.0,
+    ),
+    ParamSpec(
+        "filter.discretisation",
+        "taylor4",
+        "state transition: 4th-order Taylor series (P-11) or exact expm",
+        choices=("taylor4", "expm"),
+    ),
+    ParamSpec(
+        "filter.ktot_noise_form",
+        "per_step",
+        "k_tot random walk: 'per_step' (filter.q_ktot_per_step each step) or 'printed' (Q_k = dt G Q G^T: "
+        "almost no random walk, cannot re-adapt after a soil change; MODELS.md A.4)",
+        choices=("per_step", "printed"),
+    ),
+    ParamSpec("filter.q_ktot_per_step", 1e3, "[(N/m)^2] k_tot random-walk variance per 10 ms step", 0.0, 1e12),
+    ParamSpec("filter.accel_noise_variance", 0.5, "[(m/s^2)^2] accelerometer noise variance R (paper: 0.5)", 1e-9, 1e4),
+    ParamSpec(
+        "filter.k_tot0", 0.0, "[N/m] initial k_tot; 0: half the series stiffness (the paper's start guess)", 0.0, 1e9
+    ),
+    ParamSpec(
+        "filter.ekf_jacobian",
+        "exact",
+        "EKF Jacobian: 'exact' derivative of the discrete model, or 'paper' (omits d(B u)/dk_tot, A.6)",
+        choices=("exact", "paper"),
+    ),
+    ParamSpec("filter.gate_threshold", 0.0, "[-] Mahalanobis (NIS) gate on updates; 0 disables", 0.0, 1e6),
+)
+
+_ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("estimator.gravity", 9.80665, "[m/s^2] gravity subtracted from the specific forces (REP 145)", 0.0, 30.0),
+    ParamSpec("estimator.convergence_rel_std", 0.05, "[-] 'converged' when std(k_s)/k_s is below this", 1e-6, 10.0),
+    ParamSpec(
+        "estimator.class_log_std", 0.1, "[-] within-class spread of ln k_s for the terrain classifier", 1e-3, 10.0
+    ),
+    ParamSpec("estimator.unknown_weight", 0.05, "[-] prior weight of 'none of the known soils'", 0.0, 0.99),
+    ParamSpec("estimator.change_drift", 1.0, "[sigma] CUSUM allowance of the soil-change detector", 0.0, 100.0),
+    ParamSpec("estimator.change_threshold", 50.0, "[sigma] CUSUM alarm level of the soil-change detector", 1e-3, 1e6),
+    ParamSpec(
+        "estimator.change_ktot_std_frac",
+        0.2,
+        "[-] k_tot std added on a detected soil change, as a fraction of the series stiffness (0: off)",
+        0.0,
+        1.0,
+    ),
+    ParamSpec(
+        "estimator.profile_smoothing",
+        0.0,
+        "[s] window of the local quadratic fit of the profile (0: linear interpolation); "
+        "0.01-0.02 for 0.5-1 mm profile noise",
+        0.0,
+        1.0,
+    ),
+    ParamSpec(
+        "estimator.profile_max_gap", 0.02, "[s] a larger gap in the profile makes a step predict-only", 1e-4, 10.0
+    ),
+    ParamSpec("estimator.max_wait", 0.05, "[s] how long a step waits for the profile to cover it", 0.0, 10.0),
+    ParamSpec(
+        "estimator.max_extrapolation",
+        0.005,
+        "[s] how far past the last profile sample a late step may extrapolate the road",
+        0.0,
+        1.0,
+    ),
+    ParamSpec("estimator.max_step", 0.5, "[s] a longer gap between steps restarts the motion states", 1e-3, 1e4),
+    ParamSpec(
+        "estimator.pair_timeout",
+        0.05,
+        "[s] how long a body accelerometer sample waits for the wheel sample of the same stamp",
+        0.0,
+        10.0,
+    ),
+    ParamSpec("frames.base_link", "base_link", "frame of the estimate (prefixed with the namespace)"),
+)
+
+
+def specs_for(kind: str) -> tuple[ParamSpec, ...]:
+    """The estimator's parameter specs for ``kind`` (quarter_car | lrv)."""
+    vehicle = VEHICLE_SPECS_LRV if kind == "lrv" else VEHICLE_SPECS_QUARTER_CAR
+    return vehicle + _filter_specs(kind) + _ESTIMATOR_SPECS
+
+
+PARAMETERS = specs_for("quarter_car")
+
+
+def _f(values: Mapping[str, ParamValue], name: str) -> float:
+    return float(values[name])
+
+
+def estimator_config(values: Mapping[str, ParamValue]) -> SoilStiffnessEstimatorConfig:
+    """The core estimator's configuration from validated parameter values.
+
+    Raises:
+        ValueError: inconsistent values (e.g. a q_diag of the wrong length).
+    """
+    kind = str(values["vehicle.kind"])
+    r = _f(values, "filter.accel_noise_variance")
+    q_diag = tuple(float(v) for v in values["filter.q_diag"])
+    p0_diag = tuple(float(v) for v in values["filter.p0_diag"])
+    common: dict[str, Any] = {
+        "q_ktot_per_step": _f(values, "filter.q_ktot_per_step"),
+        "ktot_noise_form": str(values["filter.ktot_noise_form"]),
+        "discretisation": str(values["filter.discretisation"]),
+        "ekf_jacobian": str(values["filter.ekf_jacobian"]),
+    }
+    n = 3 if kind == "lrv" else 5
+    for name, diag in (("filter.q_diag", q_diag), ("filter.p0_diag", p0_diag)):
+        if len(diag) != n:
+            raise ValueError(f"{name} must hold {n} variances for {kind}, got {len(diag)}: {list(diag)}")
+    common["q_diag"] = q_diag
+    vehicle: dict[str, Any] = {}
+    if kind == "lrv":
+        vehicle["lrv"] = LRVParams(
+            m_s=_f(values, "vehicle.sprung_mass"),
+            k=_f(values, "vehicle.suspension_stiffness"),
+            c=_f(values, "vehicle.suspension_damping"),
+            relative_damper=values["vehicle.damper_reference"] == "ground",
+            r_diag=(r,),
+            **common,
+        )
+    else:
+        vehicle["quarter_car"] = QuarterCarParams(
+            m_s=_f(values, "vehicle.sprung_mass"),
+            m_ns=_f(values, "vehicle.unsprung_mass"),
+            k=_f(values, "vehicle.suspension_stiffness"),
+            c=_f(values, "vehicle.suspension_damping"),
+            k_t=_f(values, "vehicle.tire_stiffness"),
+            r_diag=(r, r),
+            **common,
+        )
+    k_tot0 = _f(values, "filter.k_tot0")
+    gate = _f(values, "filter.gate_threshold")
+    return SoilStiffnessEstimatorConfig(
+        vehicle=values["vehicle.kind"],
+        filter=values["filter.type"],
+        filter_rate_hz=_f(values, "filter.rate"),
+        substep_rate_hz=_f(values, "filter.substep_rate"),
+        k_tot0=k_tot0 if k_tot0 > 0 else None,
+        p0_diag=p0_diag,
+        gravity=_f(values, "estimator.gravity"),
+        convergence_rel_std=_f(values, "estimator.convergence_rel_std"),
+        gate_threshold=gate if gate > 0 else None,
+        class_log_std=_f(values, "estimator.class_log_std"),
+        unknown_weight=_f(values, "estimator.unknown_weight"),
+        change_drift=_f(values, "estimator.change_drift"),
+        change_threshold=_f(values, "estimator.change_threshold"),
+        change_ktot_std_frac=_f(values, "estimator.change_ktot_std_frac"),
+        profile_smoothing_s=_f(values, "estimator.profile_smoothing"),
+        profile_max_gap_s=_f(values, "estimator.profile_max_gap"),
+        max_wait_s=_f(values, "estimator.max_wait"),
+        max_extrapolation_s=_f(values, "estimator.max_extrapolation"),
+        max_step_s=_f(values, "estimator.max_step"),
+        **vehicle,
+    )
+
+
+def estimate_to_msg(estimate: SoilStiffnessEstimate, frame_id: str) -> SoilStiffness:
+    """The contract's SoilStiffness message of one estimate (all floats finite by the core)."""
+    msg = SoilStiffness(
+        k_s=estimate.k_s,
+        k_s_variance=estimate.k_s_variance,
+        k_tot=estimate.k_tot,
+        k_tot_variance=estimate.k_tot_variance,
+        terrain_class=estimate.terrain_class,
+        class_confidence=estimate.class_confidence,
+        converged=estimate.converged,
+        soil_change_detected=estimate.soil_change_detected,
+        nis=estimate.nis,
+    )
+    msg.header.stamp = sec_to_stamp(estimate.t)
+    msg.header.frame_id = frame_id
+    return msg
+
+
+class SoilStiffnessAdapter:
+    """Messages ↔ :class:`SoilStiffnessEstimator` for one vehicle."""
+
+    def __init__(self, values: Mapping[str, ParamValue], namespace: str) -> None:
+        self.config = estimator_config(values)
+        self.kind = self.config.vehicle
+        self.estimator = SoilStiffnessEstimator(self.config)
+        ns = namespace.strip("/")
+        self.frame_id = f"{ns}/{values['frames.base_link']}" if ns else str(values["frames.base_link"])
+        self.wheel_radius = _f(values, "vehicle.wheel_radius")
+        self.pair_timeout_ns = round(_f(values, "estimator.pair_timeout") * 1e9)
+        inputs = [
+            TopicSpec("imu_body", "imu/body", Imu),
+            TopicSpec("profile", "terrain/profile", PointStamped),
+            TopicSpec("joint_states", "joint_states", JointState),
+        ]
+        if self.kind == "quarter_car":
+            inputs.insert(1, TopicSpec("imu_wheel", "imu/wheel", Imu))
+        self.inputs: Sequence[TopicSpec] = tuple(inputs)
+        self.outputs: Sequence[TopicSpec] = (
+            TopicSpec("soil_stiffness", "soil_stiffness", SoilStiffness, "estimate", truth_fields=("k_s", "k_tot")),
+        )
+        self.reset()
+
+    def reset(self) -> None:
+        self.estimator.reset()
+        self.health = AdapterHealth(nis_dof=2 if self.kind == "quarter_car" else 1)
+        self._body: dict[int, float] = {}
+        self._wheel: dict[int, float] = {}
+        self.travel_speed = math.nan
+
+    # -- accelerometer pairing -------------------------------------------------
+    def _flush_before(self, stamp_ns: int) -> None:
+        """Use waiting body samples older than ``stamp_ns`` alone; drop older wheel samples."""
+        for t in sorted(t for t in self._body if t < stamp_ns):
+            self.health.reject("imu/wheel: no sample with the body stamp (body-only update)")
+            self.estimator.add_accelerations(t * 1e-9, self._body.pop(t), None)
+        for t in [t for t in self._wheel if t < stamp_ns]:
+            self.health.reject("imu/wheel: no body sample with its stamp (dropped)")
+            del self._wheel[t]
+
+    def _on_body(self, stamp_ns: int, z: float) -> None:
+        if self.kind == "lrv":
+            self.estimator.add_accelerations(stamp_ns * 1e-9, z, None)
+            return
+        if stamp_ns in self._wheel:
+            self._flush_before(stamp_ns)
+            self.estimator.add_accelerations(stamp_ns * 1e-9, z, self._wheel.pop(stamp_ns))
+            return
+        self._body[stamp_ns] = z
+        self._flush_before(stamp_ns - self.pair_timeout_ns)
+
+    def _on_wheel(self, stamp_ns: int, z: float) -> None:
+        if stamp_ns in self._body:
+            self._flush_before(stamp_ns)
+            self.estimator.add_accelerations(stamp_ns * 1e-9, self._body.pop(stamp_ns), z)
+            return
+        self._wheel[stamp_ns] = z
+        self._flush_before(stamp_ns - self.pair_timeout_ns)
+
+    # -- adapter protocol --------------------------------------------------------
+    def handle(self, key: str, msg: Any) -> list[tuple[str, Any]]:
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        if key == "profile":
+            self.estimator.add_profile_sample(stamp_ns * 1e-9, msg.point.x, msg.point.z)
+        elif key == "imu_body":
+            self._on_body(stamp_ns, msg.linear_acceleration.z)
+        elif key == "imu_wheel":
+            self._on_wheel(stamp_ns, msg.linear_acceleration.z)
+        elif key == "joint_states":
+            self._on_joints(msg)
+        return [("soil_stiffness", estimate_to_msg(e, self.frame_id)) for e in self._drain()]
+
+    def _on_joints(self, msg: Any) -> None:
+        names = list(msg.name)
+        if "wheel" in names and len(msg.velocity) == len(names):
+            rate = float(msg.velocity[names.index("wheel")])
+            if math.isfinite(rate):
+                self.travel_speed = rate * self.wheel_radius
+
+    def _drain(self) -> list[SoilStiffnessEstimate]:
+        estimates = self.estimator.drain_estimates()
+        h = self.health
+        for e in estimates:
+            h.updates += 1
+            h.last_update_time = e.t
+            if e.accepted:
+                h.nis.append(e.nis)
+        if estimates:
+            last = estimates[-1]
+            c = self.estimator.counters
+            h.status = f"k_s {last.k_s / 1e3:.1f} kN/m, {last.terrain_class} ({last.class_confidence:.2f})" + (
+                ", converged" if last.converged else ", converging"
+            )
+            h.values.update(
+                k_s=last.k_s,
+                k_s_std=math.sqrt(last.k_s_variance),
+                terrain_class=last.terrain_class,
+                travel_speed=self.travel_speed,
+                soil_changes=c.soil_changes,
+                restarts=c.restarts,
+                gated=c.gated,
+                dropped_nonfinite=c.dropped_nonfinite,
+                dropped_out_of_order=c.dropped_out_of_order,
+                dropped_no_profile=c.dropped_no_profile,
+                profile_rejected=c.profile_rejected,
+            )
+        return estimates
+
+
+def make_adapter(values: Mapping[str, ParamValue], namespace: str) -> SoilStiffnessAdapter:
+    return SoilStiffnessAdapter(values, namespace)

@@ -1,0 +1,1 @@
+"""ROS 2 layer of the simulators: parameters, messages, nodes."""

@@ -1,0 +1,288 @@
+"""Quarter-car and LRV estimation models against MODELS.md A.1–A.7 (appendix A.1–A.4)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from terrain_estimation.filters.base import JacobianModel, StateSpaceModel
+from terrain_estimation.models.quarter_car import (
+    LRVModel,
+    LRVParams,
+    QuarterCarModel,
+    QuarterCarParams,
+    discretise,
+)
+
+MS, MNS, K, C, KT = 455.0, 45.5, 25e3, 2e3, 175e3
+KTOT_GRANEVILLE = 651.1e3 * KT / (651.1e3 + KT)
+X_NOM = np.array([0.012, 0.21, -0.0061, 0.47, KTOT_GRANEVILLE])
+U_SUB = np.array([0.31, 0.12, -0.05, -0.22, -0.4, -0.18, 0.07, 0.25, 0.33, 0.29])
+
+
+def test_protocols() -> None:
+    for model in (QuarterCarModel(), LRVModel()):
+        assert isinstance(model, StateSpaceModel)
+        assert isinstance(model, JacobianModel)
+    assert QuarterCarModel().state_dim == 5 and QuarterCarModel().measurement_dim == 2
+    assert LRVModel().state_dim == 3 and LRVModel().measurement_dim == 1
+
+
+def test_a_b_g_c_match_appendix() -> None:
+    m = QuarterCarModel()
+    x5 = X_NOM[4]
+    expected_a = np.array(  # (A.1)
+        [
+            [0, 1, 0, -1, 0],
+            [-K / MS, -C / MS, 0, C / MS, 0],
+            [0, 0, 0, 1, 0],
+            [K / MNS, C / MNS, -x5 / MNS, -C / MNS, 0],
+            [0, 0, 0, 0, 0],
+        ]
+    )
+    np.testing.assert_allclose(m.A(X_NOM), expected_a, rtol=1e-15, atol=0)
+    np.testing.assert_array_equal(m.B, [0, 0, -1, 0, 0])  # (A.2)
+    np.testing.assert_array_equal(  # (A.3)
+        m.G,
+        [[0, 1, 0, 1, 0], [1, 1, 0, 1, 0], [0, 0, 0, 1, 0], [1, 1, 1, 1, 0], [0, 0, 0, 0, 1]],
+    )
+    assert round(np.linalg.det(m.G)) == 1
+    np.testing.assert_allclose(m.C(X_NOM), expected_a[[1, 3]], rtol=1e-15)  # (A.4)
+    # batched evaluation = row by row
+    pts = np.stack([X_NOM, X_NOM * [1, 1, 1, 1, 0.5]])
+    np.testing.assert_allclose(m.A(pts)[1], m.A(pts[1]))
+
+
+def test_a_x_is_the_quarter_car_equations() -> None:
+    """A(x)x + Bḣ in physical coordinates is exactly (P-2)."""
+    m = QuarterCarModel()
+    y1, v1, y2, v2, h, hdot = 0.031, -0.2, 0.012, 0.6, -0.004, 0.35
+    k_tot = X_NOM[4]
+    x = np.array([y1 - y2, v1, y2 - h, v2, k_tot])
+    a1 = -(C * (v1 - v2) + K * (y1 - y2)) / MS
+    a2 = -(C * (v2 - v1) + K * (y2 - y1) + k_tot * (y2 - h)) / MNS
+    expected = [v1 - v2, a1, v2 - hdot, a2, 0.0]
+    np.testing.assert_allclose(m.continuous_derivative(x, hdot), expected, rtol=1e-14, atol=1e-14)
+    np.testing.assert_allclose(m.h(x), [a1, a2], rtol=1e-14)
+
+
+def test_lrv_reduction_and_relative_damper() -> None:
+    lit = LRVModel()
+    rel = LRVModel(LRVParams(relative_damper=True))
+    ms, k, c = 75.0, 15e3, 1.5e3
+    k_tot = k * 28.487e3 / (k + 28.487e3)
+    x = np.array([0.02, -0.3, k_tot])
+    expected = [[0, 1, 0], [-k_tot / ms, -c / ms, 0], [0, 0, 0]]
+    np.testing.assert_allclose(lit.A(x), expected, rtol=1e-15)
+    np.testing.assert_array_equal(lit.B, [-1, 0, 0])
+    np.testing.assert_array_equal(rel.B, [-1, c / ms, 0])
+    np.testing.assert_array_equal(lit.G, [[0, 1, 0], [1, 1, 0], [0, 0, 1]])
+    hdot = np.array([0.1, 0.2, 0.4])  # ḣ at the end: 1.5·0.4 − 0.5·0.2 = 0.5
+    np.testing.assert_allclose(lit.h(x, hdot), [(-k_tot * 0.02 + c * 0.3) / ms])
+    np.testing.assert_allclose(rel.h(x, hdot), [(-k_tot * 0.02 - c * (-0.3 - 0.5)) / ms])
+    assert lit.k_series == 15e3 and QuarterCarModel().k_series == 175e3
+
+
+@pytest.mark.parametrize("which", ["phi", "gamma"])
+def test_taylor_vs_expm_is_the_fifth_order_remainder(which: str) -> None:
+    """Taylor4 (P-11) misses exactly the next series term: (Aδ)⁵/5! for Φ, A⁵δ⁶/6! for Γ."""
+    a = QuarterCarModel(QuarterCarParams()).A(X_NOM)
+    diffs = []
+    for delta in (0.01, 0.005, 0.001):
+        phi_t, gam_t = discretise(a, delta, "taylor4")
+        phi_e, gam_e = discretise(a, delta, "expm")
+        a5 = np.linalg.matrix_power(a * delta, 5)
+        if which == "phi":
+            diff, lead = phi_e - phi_t, a5 / math.factorial(5)
+        else:
+            diff, lead = gam_e - gam_t, a5 * delta / math.factorial(6)
+        ratio = np.linalg.norm(diff) / np.linalg.norm(lead)
+        assert 0.6 < ratio < 1.4, (delta, ratio)
+        diffs.append(np.linalg.norm(diff))
+    order = math.log(diffs[0] / diffs[1]) / math.log(2.0)
+    assert (5.5 if which == "gamma" else 4.5) < order < (6.5 if which == "gamma" else 5.5)
+    # documented magnitude: ≈ 6e-4 relative at the paper's 10 ms, ≈ 1e-8 at 1 ms
+    phi_t, _ = discretise(a, 0.01, "taylor4")
+    phi_e, _ = discretise(a, 0.01, "expm")
+    assert 1e-4 < np.abs(phi_e - phi_t).max() / np.abs(phi_e).max() < 3e-3
+
+
+def test_f_substeps_and_methods_agree() -> None:
+    mt = QuarterCarModel()
+    me = QuarterCarModel(QuarterCarParams(discretisation="expm"))
+    xt, xe = mt.f(X_NOM, U_SUB, 0.01), me.f(X_NOM, U_SUB, 0.01)
+    np.testing.assert_allclose(xt, xe, rtol=1e-6, atol=1e-10)
+    # one sub-step of 10 ms: the paper's ZOH; Taylor and exact differ by ~1e-4
+    d = np.abs(mt.f(X_NOM, 0.2, 0.01) - me.f(X_NOM, 0.2, 0.01))
+    assert d[:4].max() < 1e-3 and d[4] == 0
+    # N sub-steps of δ = N single steps of δ
+    y = X_NOM.copy()
+    for uj in U_SUB:
+        y = mt.f(y, uj, 0.001)
+    np.testing.assert_allclose(mt.f(X_NOM, U_SUB, 0.01), y, rtol=1e-12, atol=1e-15)
+
+
+def test_f_vectorised_over_points_and_ktot_random_walk() -> None:
+    m = QuarterCarModel()
+    rng = np.random.default_rng(3)
+    pts = X_NOM + rng.standard_normal((10, 5)) * [0.01, 0.1, 0.002, 0.1, 4e4]
+    pts[0, 4] = -5e4  # outside (0, k_t): clamped in the dynamics, passed through
+    pts[1, 4] = 3e5
+    out = m.f(pts, U_SUB, 0.01)
+    assert out.shape == (10, 5)
+    for i in range(10):
+        np.testing.assert_allclose(out[i], m.f(pts[i], U_SUB, 0.01), rtol=1e-13, atol=1e-15)
+    np.testing.assert_array_equal(out[:, 4], pts[:, 4])
+    kmin, kmax = m.ktot_bounds
+    clamped = pts[0].copy()
+    clamped[4] = kmin
+    np.testing.assert_allclose(out[0, :4], m.f(clamped, U_SUB, 0.01)[:4])
+    z = m.h(pts, U_SUB)
+    assert z.shape == (10, 2)
+    # hostile but finite: never NaN
+    hostile = np.array([[1e3, -1e4, 1e3, 1e5, -1e12], [0, 0, 0, 0, 1e30]])
+    assert np.isfinite(m.f(hostile, np.full(10, 1e6), 0.01)).all()
+    assert np.isfinite(m.h(hostile)).all()
+    assert np.isfinite(m.f(X_NOM, np.array([np.nan, 0.1]), 0.01)).all()
+
+
+def _fd_jacobian(fun, x: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    cols = []
+    for i in range(x.size):
+        e = np.zeros_like(x)
+        e[i] = 1e-6 * scales[i]
+        cols.append((fun(x + e) - fun(x - e)) / (2 * e[i]))
+    return np.stack(cols, axis=1)
+
+
+@pytest.mark.parametrize("method", ["taylor4", "expm"])
+@pytest.mark.parametrize("vehicle", ["quarter_car", "lrv", "lrv_relative"])
+def test_jacobians_match_central_differences(method: str, vehicle: str) -> None:
+    if vehicle == "quarter_car":
+        m: QuarterCarModel | LRVModel = QuarterCarModel(QuarterCarParams(discretisation=method))
+        x = X_NOM
+        scales = np.array([0.01, 0.1, 0.01, 0.1, 1e5])
+    else:
+        m = LRVModel(LRVParams(discretisation=method, relative_damper=vehicle == "lrv_relative"))
+        x = np.array([0.013, -0.21, 9826.0])
+        scales = np.array([0.01, 0.1, 1e4])
+    for u in (U_SUB, 0.3):
+        jac = m.transition_jacobian(x, u, 0.01)
+        jac_fd = _fd_jacobian(lambda v, u=u: m.f(v, u, 0.01), x, scales)
+        err = np.linalg.norm(jac - jac_fd, axis=0) / np.linalg.norm(jac_fd, axis=0)
+        assert err.max() < 1e-6, err
+    hx = m.measurement_jacobian(x, U_SUB)
+    hx_fd = _fd_jacobian(lambda v: m.h(v, U_SUB), x, scales)
+    np.testing.assert_allclose(hx, hx_fd, rtol=1e-7, atol=1e-12)
+
+
+def test_paper_jacobian_omits_the_input_term() -> None:
+    exact = QuarterCarModel()
+    paper = QuarterCarModel(QuarterCarParams(ekf_jacobian="paper"))
+    # one sub-step: the paper's form is the series of A_x (A.6)
+    a_x = exact.A(X_NOM)
+    a_x[3, 4] = -X_NOM[2] / MNS
+    phi_x, _ = discretise(a_x, 0.01, "taylor4")
+    np.testing.assert_allclose(paper.transition_jacobian(X_NOM, 0.0, 0.01), phi_x, rtol=1e-14)
+    # with road input the k_tot columns differ by exactly ∂(B_k u)/∂k_tot
+    u = 0.5
+    d_u = exact.transition_jacobian(X_NOM, u, 0.01) - paper.transition_jacobian(X_NOM, u, 0.01)
+    d_0 = exact.transition_jacobian(X_NOM, 0.0, 0.01) - paper.transition_jacobian(X_NOM, 0.0, 0.01)
+    np.testing.assert_allclose(d_u[:, :4], 0.0, atol=1e-15)
+    dk = 1.0
+    _, g_hi = discretise(exact.A(X_NOM + [0, 0, 0, 0, dk]), 0.01, "taylor4")
+    _, g_lo = discretise(exact.A(X_NOM - [0, 0, 0, 0, dk]), 0.01, "taylor4")
+    input_term = (g_hi - g_lo) @ exact.B * u / (2 * dk)
+    np.testing.assert_allclose(d_u[:, 4] - d_0[:, 4], input_term, rtol=1e-6, atol=1e-18)
+    assert np.abs(input_term[3]) > 1e-9
+
+
+def _lie_observability(m: QuarterCarModel, x: np.ndarray) -> np.ndarray:
+    """∂/∂x L_f^i h, i = 0…n−1 (P-10), for the drift f = A(x)x.
+
+    k_tot is constant along f, so L_f^i h = (A^{i+1} x)[rows] with A = A(x5);
+    its x5-derivative is (dA^{i+1}/dx5 x)[rows], dA^j = Σ A^a E A^{j−1−a}.
+    """
+    n = m.state_dim
+    a = m.A(x)
+    e = np.zeros((n, n))
+    e[3, 2] = -1.0 / MNS
+    rows = []
+    for i in range(n):
+        j = i + 1
+        aj = np.linalg.matrix_power(a, j)
+        mp = np.linalg.matrix_power
+        daj = sum(mp(a, p) @ e @ mp(a, j - 1 - p) for p in range(j))
+        grad = aj.copy()
+        grad[:, 4] = daj @ x
+        rows.append(grad[[1, 3]])
+    return np.vstack(rows)
+
+
+def test_observability_rank_full_at_nominal_point() -> None:
+    m = QuarterCarModel()
+    # the closed form of L_f^1 h against a numerical Lie derivative
+    eps = 1e-7
+    fx = m.continuous_derivative(X_NOM)
+    lie1 = (m.h(X_NOM + eps * fx) - m.h(X_NOM - eps * fx)) / (2 * eps)
+    a = m.A(X_NOM)
+    np.testing.assert_allclose(lie1, (a @ a @ X_NOM)[[1, 3]], rtol=1e-6)
+
+    scale = np.diag([0.01, 0.1, 0.01, 0.1, 1e5])  # typical magnitudes: a fair SVD
+    mobs = _lie_observability(m, X_NOM) @ scale
+    mobs /= np.linalg.norm(mobs, axis=1, keepdims=True)
+    sv = np.linalg.svd(mobs, compute_uv=False)
+    assert np.linalg.matrix_rank(mobs, tol=1e-9 * sv[0]) == 5
+    # at rest (all motion states zero) k_tot is not observable: excitation needed
+    at_rest = X_NOM * [0, 0, 0, 0, 1]
+    mobs0 = _lie_observability(m, at_rest) @ scale
+    assert np.linalg.matrix_rank(mobs0, tol=1e-9 * np.abs(mobs0).max()) == 4
+
+
+def test_process_noise_forms() -> None:
+    dt = 0.01
+    per_step = QuarterCarModel()
+    printed = QuarterCarModel(QuarterCarParams(ktot_noise_form="printed"))
+    lp = per_step.process_noise_sqrt(X_NOM, U_SUB, dt)
+    lq = printed.process_noise_sqrt(X_NOM, U_SUB, dt)
+    qp, qq = lp @ lp.T, lq @ lq.T
+    assert qp[4, 4] == pytest.approx(1e3)
+    assert qq[4, 4] == pytest.approx(dt**3 * 1e5)  # 0.1 (N/m)² per step (A.4)
+    np.testing.assert_allclose(qp[:4, :4], qq[:4, :4])
+    assert np.all(qp[4, :4] == 0)
+    # states 1–4: Δt G_k Q G_kᵀ with G_k = Γ_k G, Γ_k over the whole step
+    a = per_step.A(X_NOM)
+    _, gam = discretise(a, dt, "taylor4")
+    gk = gam @ per_step.G
+    qd = dt * gk @ np.diag([1e-5, 1e-3, 1e-5, 1e-3, 0.0]) @ gk.T
+    np.testing.assert_allclose(qp[:4, :4], qd[:4, :4], rtol=1e-12, atol=1e-20)
+    # a longer step scales the k_tot random walk linearly
+    assert (per_step.process_noise_sqrt(X_NOM, 0.0, 0.02)[4, 4]) ** 2 == pytest.approx(2e3)
+    np.testing.assert_allclose(per_step.measurement_noise_sqrt(), np.diag(np.sqrt([0.5, 0.5])))
+
+
+def test_params_validation() -> None:
+    with pytest.raises(ValueError):
+        QuarterCarParams(m_s=0.0)
+    with pytest.raises(ValueError):
+        QuarterCarParams(q_diag=(1.0, 1.0))
+    with pytest.raises(ValueError):
+        QuarterCarParams(discretisation="rk4")  # type: ignore[arg-type]
+    with pytest.raises(ValueError):
+        LRVParams(r_diag=(0.0,))
+    with pytest.raises(ValueError):
+        LRVParams(ktot_min_frac=0.5, ktot_max_frac=0.4)
+
+
+def test_core_does_not_import_ros() -> None:
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; import terrain_estimation.models.quarter_car, "
+        "terrain_estimation.models.soil, terrain_estimation.estimators.soil_stiffness; "
+        "sys.exit(1 if any(m.startswith('rclpy') for m in sys.modules) else 0)"
+    )
+    assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0

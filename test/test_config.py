@@ -1,0 +1,38 @@
+"""The vehicle configs document every parameter the nodes declare, and only those."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from terrain_estimation.params import load_parameter_file, resolve_parameters
+from terrain_estimation.ros.framework import EstimatorNode, SimulatorNode
+from terrain_estimation.tools.config_template import render_config
+from terrain_estimation.vehicles import VEHICLES
+from vehicle_sim.ros.registry import get_simulator
+
+CONFIG = Path(__file__).resolve().parents[1] / "config"
+
+
+@pytest.mark.parametrize("vehicle", sorted(VEHICLES))
+def test_committed_config_is_the_rendered_one(vehicle):
+    assert (CONFIG / f"{vehicle}.yaml").read_text() == render_config(vehicle), (
+        f"config/{vehicle}.yaml is stale: python -m terrain_estimation.tools.config_template {vehicle}"
+    )
+
+
+@pytest.mark.parametrize("vehicle", sorted(VEHICLES))
+def test_every_parameter_has_a_comment_and_validates(vehicle):
+    path = CONFIG / f"{vehicle}.yaml"
+    lines = path.read_text().splitlines()
+    for i, line in enumerate(lines):
+        stripped = line.strip()
+        is_value = ":" in stripped and not stripped.startswith("#") and not stripped.endswith(":")
+        if is_value:
+            assert lines[i - 1].strip().startswith("#"), f"{path.name}:{i + 1} has no comment: {stripped}"
+    entry, sim = VEHICLES[vehicle], get_simulator(vehicle)
+    est_specs = tuple(EstimatorNode.COMMON_SPECS) + tuple(entry.specs)
+    sim_specs = tuple(SimulatorNode.COMMON_SPECS) + tuple(sim.specs)
+    resolve_parameters(est_specs, load_parameter_file(path, [entry.node_name]), strict=True)
+    resolve_parameters(sim_specs, load_parameter_file(path, [sim.node_name]), strict=True)
