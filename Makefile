@@ -30,7 +30,7 @@ export OMP_NUM_THREADS ?= 1
 
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test lint typecheck unit reproduce bench bags clean distclean constraints
+.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc bench bags clean distclean constraints
 
 setup: $(PKGS_STAMP)
 
@@ -68,8 +68,11 @@ test: setup lint typecheck unit
 bench: setup
 	$(PY) -m terrain_estimation.tools.bench
 
-reproduce: setup
-	$(PY) -m pytest -m slow -p no:xdist $(PYTEST_ARGS)
+# Long reproductions of the papers' results (not part of make test).
+reproduce: reproduce-qc
+
+reproduce-qc: setup
+	$(PY) -m terrain_estimation.tools.reproduce_qc --out docs/results --jobs 2
 
 constraints: setup
 	{ head -n 3 constraints.txt; $(PIP) freeze | grep -v -E '^(-e |terrain|vehicle)'; } > constraints.txt.new
