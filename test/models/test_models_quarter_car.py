@@ -13,6 +13,7 @@ from terrain_estimation.models.quarter_car import (
     LRVParams,
     QuarterCarModel,
     QuarterCarParams,
+    StepInput,
     discretise,
 )
 
@@ -83,6 +84,55 @@ def test_lrv_reduction_and_relative_damper() -> None:
     np.testing.assert_allclose(lit.h(x, hdot), [(-k_tot * 0.02 + c * 0.3) / ms])
     np.testing.assert_allclose(rel.h(x, hdot), [(-k_tot * 0.02 - c * (-0.3 - 0.5)) / ms])
     assert lit.k_series == 15e3 and QuarterCarModel().k_series == 175e3
+
+
+def test_step_input_carries_hdot_at_the_measurement_time() -> None:
+    """StepInput: the same propagation as its sub-step array, its own ḣ(t) in the feed-through."""
+    rel = LRVModel(LRVParams(relative_damper=True))
+    ms, c = 75.0, 1.5e3
+    x = np.array([0.02, -0.3, 9.8e3])
+    hdot = np.array([0.1, 0.2, 0.4])
+    base = rel.h(x, 0.0)[0]
+    np.testing.assert_allclose(rel.h(x, StepInput(hdot, 0.7)), [base + c / ms * 0.7], rtol=1e-14)
+    for fallback in (None, float("nan")):  # → extrapolation 1.5·0.4 − 0.5·0.2
+        np.testing.assert_allclose(rel.h(x, StepInput(hdot, fallback)), [base + c / ms * 0.5], rtol=1e-14)
+    np.testing.assert_array_equal(rel.f(x, StepInput(hdot, 0.7), 0.01), rel.f(x, hdot, 0.01))
+    np.testing.assert_array_equal(
+        rel.transition_jacobian(x, StepInput(hdot, 0.7), 0.01), rel.transition_jacobian(x, hdot, 0.01)
+    )
+    np.testing.assert_array_equal(rel.measurement_jacobian(x, StepInput(hdot, 0.7)), rel.measurement_jacobian(x))
+    # without feed-through the end value is ignored
+    lit = LRVModel()
+    assert lit.h(x, StepInput(hdot, 5.0))[0] == lit.h(x, hdot)[0]
+
+
+@pytest.mark.parametrize("vehicle", ["quarter_car", "lrv_relative", "lrv_literal"])
+def test_profile_error_gains(vehicle: str) -> None:
+    """``δz ≈ C B ε_h + D ε_ḣ``: closed forms, and a perturbed road through f and h."""
+    if vehicle == "quarter_car":
+        m: QuarterCarModel | LRVModel = QuarterCarModel()
+        x = X_NOM
+        expected_h, expected_d = [0.0, x[4] / MNS], [0.0, 0.0]
+    else:
+        relative = vehicle == "lrv_relative"
+        m = LRVModel(LRVParams(relative_damper=relative))
+        x = np.array([0.02, -0.3, 9.8e3])
+        ms, c = 75.0, 1.5e3
+        expected_h = [x[2] / ms - ((c / ms) ** 2 if relative else 0.0)]
+        expected_d = [c / ms if relative else 0.0]
+    g_h, g_d = m.profile_error_gains(x)
+    np.testing.assert_allclose(g_h, expected_h, rtol=1e-14)
+    np.testing.assert_allclose(g_d, expected_d, rtol=1e-14)
+    np.testing.assert_allclose(m.profile_error_gains(np.stack([x, x]))[0], g_h)  # point sets: the mean
+    # A step whose last grid elevation is off by ε (ḣ(t) held fixed): the
+    # predicted accelerations move by ≈ g_h ε (first order in the 1 ms sub-step).
+    eps, delta = 1e-4, 1e-3
+    u = U_SUB.copy()
+    u_eps = u.copy()
+    u_eps[-1] += eps / delta
+    z0 = m.h(m.f(x, StepInput(u, 0.3), 0.01), StepInput(u, 0.3))
+    z1 = m.h(m.f(x, StepInput(u_eps, 0.3), 0.01), StepInput(u_eps, 0.3))
+    np.testing.assert_allclose((z1 - z0) / eps, g_h, rtol=0.05, atol=0.01 * np.abs(g_h).max())
 
 
 @pytest.mark.parametrize("which", ["phi", "gamma"])

@@ -195,7 +195,11 @@ def test_waits_for_profile_coverage_and_steps_on_arrival() -> None:
     est.add_profile_sample(0.0305, 0.305, 0.0)
     assert est.add_accelerations(0.03, G, G) is not None
     assert est.add_accelerations(0.04, G, G) is None
-    for j in range(1, 8):
+    n_wait = round(est.config.max_wait_s / 0.01)
+    for j in range(1, n_wait + 1):  # within max_wait_s of the newest sample: still waiting
+        est.add_accelerations(0.04 + j * 0.01, G, G)
+    assert est.counters.dropped_no_profile == 0 and est.pending_steps == n_wait + 1
+    for j in range(n_wait + 1, n_wait + 8):
         est.add_accelerations(0.04 + j * 0.01, G, G)
     assert est.counters.dropped_no_profile >= 2
     est.reset()
@@ -358,3 +362,67 @@ def test_lrv_regolith() -> None:
     print(f"\nLRV regolith 2 m/s: k_s error over 3–10 s mean {steady.mean():+.2f} %")
     assert np.abs(steady).max() < 5.0
     assert estimates[-1].terrain_class == "lunar_regolith"
+
+
+# ---------------------------------------------------------------------------
+# ḣ at the measurement time (LRV feed-through) and the profile-noise inflation
+# ---------------------------------------------------------------------------
+
+
+def test_fit_weights_reproduce_polynomials_and_give_the_noise_gain() -> None:
+    from terrain_estimation.estimators.soil_stiffness import _fit_weights
+
+    rng = np.random.default_rng(7)
+    pt = np.cumsum(rng.uniform(0.8e-3, 1.2e-3, 200))  # jittered ≈ 1 kHz stamps
+    t = float(pt[100] + 0.3e-3)
+    coef = rng.standard_normal(6)
+    for degree in (1, 3, 5):
+        lo, w0, w1 = _fit_weights(pt, t, 0.015, degree)
+        c = coef[: degree + 1]
+        h = np.polynomial.polynomial.polyval(pt[lo : lo + w0.size] - t, c)
+        assert w0 @ h == pytest.approx(c[0], abs=1e-9)
+        assert w1 @ h == pytest.approx(c[1], rel=1e-7)
+    # uniform 1 kHz, degree 5 over 30 ms: std(ḣ) = 0.0887 σ_h per ms (module docstring)
+    uniform = np.arange(200) * 1e-3
+    _, w0, w1 = _fit_weights(uniform, 0.1, 0.015, 5)
+    assert np.linalg.norm(w1) * 1e-3 == pytest.approx(0.0887, rel=2e-3)
+    assert abs(w0 @ w1) < 1e-9  # symmetric window: value and slope errors uncorrelated
+    # window not covered on one side, or too few samples: no fit
+    assert _fit_weights(uniform, 0.195, 0.015, 5) is None
+    assert _fit_weights(uniform, 0.1, 0.002, 5) is None
+
+
+def test_lrv_hdot_fit_and_inflated_measurement_noise() -> None:
+    """On a noisy profile the fitted ḣ(t) is close to the truth and R grows by (c/m)² var(ḣ)."""
+    _need("sckf")
+    sigma, speed, n_cyc, amp = 1e-4, 2.0, 3.0, 0.01  # 6 Hz road, 10 mm
+    rng = np.random.default_rng(1)
+    cfg = SoilStiffnessEstimatorConfig(vehicle="lrv", lrv=LRVParams(relative_damper=True), profile_noise_std=sigma)
+    est = SoilStiffnessEstimator(cfg)
+    omega = 2 * np.pi * n_cyc * speed
+    seen: list[tuple[float, float | None, np.ndarray]] = []
+    original = est._road_at_measurement
+
+    def spy(t, u_sub, delta):
+        out = original(t, u_sub, delta)
+        seen.append((t, *out))
+        return out
+
+    est._road_at_measurement = spy  # type: ignore[method-assign]
+    for j in range(1101):
+        tj = j * 1e-3
+        est.add_profile_sample(tj, speed * tj, amp * math.sin(omega * tj) + sigma * rng.standard_normal())
+        if j % 10 == 0:
+            est.add_accelerations(tj, G)
+    assert len(seen) >= 100
+    err = np.array([hd - amp * omega * math.cos(omega * t) for t, hd, _ in seen if hd is not None])
+    var_d = np.array([sig[1, 1] for _, hd, sig in seen if hd is not None])
+    assert err.size >= 100
+    # window 0.06 m / 2 m/s = 30 ms: std(ḣ) = 0.0887 σ_h/ms ≈ 8.9 mm/s, no visible gain error
+    assert np.sqrt(var_d.mean()) == pytest.approx(0.0887 * sigma / 1e-3, rel=0.05)
+    assert 0.7 < err.std() / np.sqrt(var_d.mean()) < 1.3 and abs(err.mean()) < 3e-3
+    # R_eff = R + G Σ Gᵀ with G = [k_tot/m − (c/m)², c/m]
+    x = np.asarray(est._state.x)
+    rs = est._measurement_noise_sqrt(x, 1, seen[-1][2])
+    g = np.array([x[-1] / 75.0 - 20.0**2, 20.0])
+    assert (rs @ rs.T)[0, 0] == pytest.approx(0.5 + g @ seen[-1][2] @ g, rel=1e-12)

@@ -82,7 +82,11 @@ def _filter_specs(kind: str) -> tuple[ParamSpec, ...]:
     # Not given by the paper; MODELS.md A.5 values (k_tot std: 0.29 of the series stiffness).
     p0_diag = [1e-4, 1e-2, 4.3e3**2] if lrv else [1e-4, 1e-2, 1e-4, 1e-2, 50e3**2]
     state = "[y1-h, dy1, k_tot]" if lrv else "[y1-y2, dy1, y2-h, dy2, k_tot]"
+    # Same relative random walk on both vehicles: 1e3 (N/m)^2 per step on the
+    # quarter car's k_t = 175 kN/m, scaled by (15/175)^2 for the LRV's k = 15 kN/m.
+    q_ktot = 7.35 if lrv else 1e3
     return _FILTER_SPECS + (
+        ParamSpec("filter.q_ktot_per_step", q_ktot, "[(N/m)^2] k_tot random-walk variance per 10 ms step", 0.0, 1e12),
         ParamSpec(
             "filter.q_diag",
             q_diag,
@@ -122,7 +126,6 @@ _FILTER_SPECS: tuple[ParamSpec, ...] = (
         "almost no random walk, cannot re-adapt after a soil change; MODELS.md A.4)",
         choices=("per_step", "printed"),
     ),
-    ParamSpec("filter.q_ktot_per_step", 1e3, "[(N/m)^2] k_tot random-walk variance per 10 ms step", 0.0, 1e12),
     ParamSpec("filter.accel_noise_variance", 0.5, "[(m/s^2)^2] accelerometer noise variance R (paper: 0.5)", 1e-9, 1e4),
     ParamSpec(
         "filter.k_tot0", 0.0, "[N/m] initial k_tot; 0: half the series stiffness (the paper's start guess)", 0.0, 1e9
@@ -163,11 +166,27 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "estimator.profile_max_gap", 0.02, "[s] a larger gap in the profile makes a step predict-only", 1e-4, 10.0
     ),
-    ParamSpec("estimator.max_wait", 0.05, "[s] how long a step waits for the profile to cover it", 0.0, 10.0),
+    ParamSpec("estimator.max_wait", 0.25, "[s] how long a step waits for the profile to cover it", 0.0, 10.0),
     ParamSpec(
         "estimator.max_extrapolation",
         0.005,
         "[s] how far past the last profile sample a late step may extrapolate the road",
+        0.0,
+        1.0,
+    ),
+    ParamSpec(
+        "estimator.profile_noise_std",
+        1e-4,
+        "[m] std of the white noise on the profile elevations; inflates R by its effect on the predicted "
+        "accelerations (0: noise-free profile)",
+        0.0,
+        0.1,
+    ),
+    ParamSpec(
+        "estimator.hdot_window",
+        0.06,
+        "[m] road length of the centred fit giving dh/dt at the measurement time (LRV ground-referenced "
+        "damper; 0: extrapolation)",
         0.0,
         1.0,
     ),
@@ -259,6 +278,8 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SoilStiffnessEstimator
         max_wait_s=_f(values, "estimator.max_wait"),
         max_extrapolation_s=_f(values, "estimator.max_extrapolation"),
         max_step_s=_f(values, "estimator.max_step"),
+        profile_noise_std=_f(values, "estimator.profile_noise_std"),
+        hdot_window_m=_f(values, "estimator.hdot_window"),
         **vehicle,
     )
 
