@@ -342,6 +342,15 @@ class SimulatorNode(_ParamsMixin, Node):
             "duration", 0.0, "[s] stop after this much simulated time (0: run forever)", 0.0, 1e7, read_only=True
         ),
         ParamSpec("publish_clock", True, "publish /clock with the simulated time", read_only=True),
+        ParamSpec(
+            "wait_for_subscribers",
+            0,
+            "[-] start simulating only when every sensor topic has this many subscribers (0: start at once); "
+            "a best-effort sample published before discovery completes is lost",
+            0,
+            100,
+            read_only=True,
+        ),
     )
 
     def __init__(
@@ -366,6 +375,8 @@ class SimulatorNode(_ParamsMixin, Node):
         self.sim_time = 0.0
         self.steps = 0
         self.done = False
+        self._wait_for = int(self.values["wait_for_subscribers"])
+        self._sensor_topics = [o.key for o in self.adapter.outputs if o.kind == "sensor"]
         factor = float(self.values["realtime_factor"])
         self._duration = float(self.values["duration"])
         # A wall timer: simulated time must not wait on the /clock it drives.
@@ -384,7 +395,18 @@ class SimulatorNode(_ParamsMixin, Node):
         for key, msg in messages:
             self._output_publishers[key].publish(msg)
 
+    def _subscribers_ready(self) -> bool:
+        if self._wait_for <= 0:
+            return True
+        ready = all(self._output_publishers[k].get_subscription_count() >= self._wait_for for k in self._sensor_topics)
+        if ready:
+            self._wait_for = 0
+            self.get_logger().info("subscribers matched: simulating")
+        return ready
+
     def _tick(self) -> None:
+        if not self._subscribers_ready():
+            return
         for _ in range(self._steps_per_tick):
             if self.done:
                 return
@@ -396,13 +418,21 @@ class SimulatorNode(_ParamsMixin, Node):
 
 
 def spin_node(node: Node) -> None:
-    """Spin ``node`` until Ctrl-C or shutdown, then clean up (the ros2/demos pattern)."""
-    from rclpy.executors import ExternalShutdownException
+    """Spin ``node`` until Ctrl-C, shutdown or (a simulator) its end, then clean up.
 
+    The ros2/demos pattern; a :class:`SimulatorNode` with a ``duration``
+    returns when it has simulated it.
+    """
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
     try:
-        rclpy.spin(node)
+        while rclpy.ok(context=node.context) and not getattr(node, "done", False):
+            executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()

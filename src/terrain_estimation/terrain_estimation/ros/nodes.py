@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 import rclpy
 from rclpy.parameter import Parameter
@@ -28,12 +29,20 @@ def make_estimator_node(
     namespace: str | None = None,
     config: str | None = None,
     overrides: dict[str, object] | None = None,
+    use_config: bool = True,
     **node_kwargs: object,
 ) -> EstimatorNode:
-    """Build the estimator node of ``vehicle`` with its config file applied."""
+    """Build the estimator node of ``vehicle`` in-process.
+
+    With ``use_config`` the config file (default ``config/<vehicle>.yaml``) and
+    then ``overrides`` become the node's parameter overrides (they win over the
+    command line; the executable passes the file to rcl instead).
+    """
     entry = get_vehicle(vehicle)
     path = config or entry.config_path()
-    values = load_parameter_file(path, [entry.node_name]) if config or entry.config_path().exists() else {}
+    values = {}
+    if use_config and (config or entry.config_path().exists()):
+        values = load_parameter_file(path, [entry.node_name])
     values.update(overrides or {})
     params = [Parameter(name, value=value) for name, value in values.items()]
     return EstimatorNode(
@@ -54,9 +63,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--vehicle", required=True, choices=sorted(VEHICLES))
     parser.add_argument("--config", help="parameter file (default: config/<vehicle>.yaml)")
     args = parser.parse_args(own)
-    rclpy.init(args=["terrain-estimator-node", *ros_args])
+    config = args.config or str(get_vehicle(args.vehicle).config_path())
+    # The config file goes to rcl first: the user's own --ros-args (-p name:=value,
+    # --params-file) come later and win. (Node parameter_overrides would win
+    # over the command line, so the file is not passed that way here.)
+    rcl_args = ["--ros-args", "--params-file", config] if Path(config).exists() else []
+    rclpy.init(args=["terrain-estimator-node", *rcl_args, *ros_args])
     try:
-        node = make_estimator_node(args.vehicle, config=args.config)
+        node = make_estimator_node(args.vehicle, config=None, use_config=False)
     except (ParameterError, ValueError) as exc:
         print(f"terrain-estimator-node: error: {exc}", file=sys.stderr)
         rclpy.try_shutdown()

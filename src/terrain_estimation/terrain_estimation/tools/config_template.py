@@ -87,10 +87,11 @@ def render_config(vehicle: str) -> str:
     lines += _section('"/**"', shared)
     lines.append("")
     lines.append(f"# the estimator node ({entry.node_name})")
-    lines += _section(entry.node_name, [s for s in est_specs if s.name not in shared_names])
+    # "/**/name" matches the node under any namespace (a bare "name" only in "/").
+    lines += _section(f'"/**/{entry.node_name}"', [s for s in est_specs if s.name not in shared_names])
     lines.append("")
     lines.append(f"# the simulator node ({sim.node_name}); also read by terrain-simulate")
-    lines += _section(sim.node_name, [s for s in sim_specs if s.name not in shared_names])
+    lines += _section(f'"/**/{sim.node_name}"', [s for s in sim_specs if s.name not in shared_names])
     return "\n".join(lines) + "\n"
 
 

@@ -1,9 +1,11 @@
 """``make demo``: simulate each vehicle, estimate live over ROS 2, summarise.
 
-For every vehicle that exists so far, one process runs the vehicle's
-simulator node (publishing ``/clock``, sensors and ground truth), its
-estimator node (``use_sim_time``) and a recorder, all talking over ROS 2
-topics through DDS on this host. Afterwards it prints a table (final estimate
+For every vehicle that exists so far, the vehicle's simulator node runs as a
+process of its own (publishing ``/clock``, sensors and ground truth) and this
+process runs its estimator node (``use_sim_time``) and a recorder, all
+talking over ROS 2 topics through DDS on this host. The "estimates" column
+says how many of the expected estimates arrived: fewer means messages were
+lost (a loaded machine, or a real-time factor the estimator cannot keep). Afterwards it prints a table (final estimate
 against ground truth, time to converge, innovation consistency, the
 estimator's diagnostic level) and writes plots under ``out/``.
 """
@@ -70,6 +72,7 @@ class DemoResult:
     diagnostic_message: str
     wall_time: float
     sim_time: float
+    expected_estimates: int
 
     @property
     def rel_error(self) -> np.ndarray:
@@ -88,8 +91,30 @@ class DemoResult:
         return float(t[above[-1] + 1])
 
 
+def _params_file(node_name: str, params: dict[str, Any], directory: Path) -> Path:
+    """A ROS 2 parameter file giving ``params`` to ``node_name`` under any namespace.
+
+    Passed after the vehicle's config file: for rcl, a node-specific entry of
+    a file outranks a global ``-p name:=value``, so overrides of parameters the
+    config sets per node must come as a later node-specific file.
+    """
+    import yaml
+
+    path = directory / f"{node_name}_demo.yaml"
+    path.write_text(yaml.safe_dump({f"/**/{node_name}": {"ros__parameters": params}}))
+    return path
+
+
 def run_scenario(scenario: DemoScenario, realtime_factor: float, progress: bool = True) -> DemoResult:
-    """Run one scenario live over ROS 2 (one process, three nodes)."""
+    """Run one scenario live over ROS 2.
+
+    The simulator runs as its own process (``terrain-sim-node``), as on a
+    robot; the estimator node and a recorder share this process. The
+    simulator starts stepping once the estimator's subscriptions are matched.
+    """
+    import subprocess
+    import tempfile
+
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -99,14 +124,19 @@ def run_scenario(scenario: DemoScenario, realtime_factor: float, progress: bool 
     from terrain_estimation.ros.nodes import make_estimator_node
     from terrain_estimation.ros.qos import ESTIMATE_QOS
     from terrain_msgs.msg import SoilStiffness
-    from vehicle_sim.ros.nodes import make_simulator_node
+    from vehicle_sim.ros.registry import get_simulator
+
+    params = dict(scenario.sim_overrides)
+    params.update(realtime_factor=realtime_factor, duration=scenario.duration, wait_for_subscribers=1)
+    tmp = Path(tempfile.mkdtemp(prefix="terrain-demo-"))
+    overrides_file = _params_file(get_simulator(scenario.vehicle).node_name, params, tmp)
+    command = [sys.executable, "-m", "vehicle_sim.ros.nodes", "--vehicle", scenario.vehicle]
+    command += ["--ros-args", "--params-file", str(overrides_file)]
 
     context = Context()
     rclpy.init(context=context)
+    sim = None
     try:
-        overrides = dict(scenario.sim_overrides)
-        overrides.update(realtime_factor=realtime_factor, duration=scenario.duration)
-        sim = make_simulator_node(scenario.vehicle, overrides=overrides, context=context)
         est = make_estimator_node(scenario.vehicle, overrides={"use_sim_time": True}, context=context)
         recorder = Node("demo_recorder", context=context)
         ns = est.get_namespace()
@@ -117,26 +147,25 @@ def run_scenario(scenario: DemoScenario, realtime_factor: float, progress: bool 
             SoilStiffness, f"{ns}/ground_truth/{scenario.estimate_topic}", truth.append, ESTIMATE_QOS
         )
         executor = SingleThreadedExecutor(context=context)
-        for node in (est, recorder, sim):
-            executor.add_node(node)
+        executor.add_node(est)
+        executor.add_node(recorder)
+        sim = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         started = time.monotonic()
         last_report = started
-        # Let discovery settle before the first sample: the simulator's timer
-        # starts at once, and a sample published before the estimator is
-        # matched is lost (best effort).
-        for _ in range(300):
-            executor.spin_once(timeout_sec=0.01)
-            if sim.count_subscribers(f"{ns}/imu/body") > 0 and est.count_publishers(f"{ns}/imu/body") > 0:
-                break
-        while not sim.done:
+        while sim.poll() is None:
             executor.spin_once(timeout_sec=0.05)
             if progress and time.monotonic() - last_report > 2.0:
                 last_report = time.monotonic()
+                t_now = est.get_clock().now().nanoseconds * 1e-9
                 print(
-                    f"  ... {scenario.vehicle}: {sim.sim_time:.1f} / {scenario.duration:.0f} s simulated, "
+                    f"  ... {scenario.vehicle}: {t_now:.1f} / {scenario.duration:.0f} s simulated, "
                     f"{len(estimates)} estimates",
                     file=sys.stderr,
                 )
+        if sim.returncode != 0:
+            raise RuntimeError(
+                f"{scenario.vehicle} simulator failed ({sim.returncode}): {sim.stderr.read() if sim.stderr else ''}"
+            )
         # drain what is still queued
         drain_until = time.monotonic() + 1.0
         while time.monotonic() < drain_until:
@@ -144,9 +173,12 @@ def run_scenario(scenario: DemoScenario, realtime_factor: float, progress: bool 
         wall = time.monotonic() - started
         status = est.diagnostic_status()
         executor.shutdown()
-        for node in (sim, est, recorder):
+        for node in (est, recorder):
             node.destroy_node()
     finally:
+        if sim is not None and sim.poll() is None:
+            sim.terminate()
+            sim.wait(timeout=10)
         rclpy.try_shutdown(context=context)
 
     if not estimates:
@@ -167,6 +199,7 @@ def run_scenario(scenario: DemoScenario, realtime_factor: float, progress: bool 
         diagnostic_message=status.message,
         wall_time=wall,
         sim_time=float(t_est[-1]),
+        expected_estimates=round(scenario.duration * 100.0) - 1,
     )
 
 
