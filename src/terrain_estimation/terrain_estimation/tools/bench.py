@@ -1,0 +1,494 @@
+"""``python -m terrain_estimation.tools.bench``: how fast the filters, the estimator and the simulator run.
+
+One run prints, side by side (``make bench``):
+
+1. **Filter step** — predict + update of the SCKF, CKF, UKF and EKF of
+   :mod:`terrain_estimation.filters` on the quarter-car estimation model
+   (:class:`~terrain_estimation.models.quarter_car.QuarterCarModel`, 10
+   sub-steps of the measured road per 10 ms step, MODELS.md A.10), and of
+   filterpy's ``UnscentedKalmanFilter`` with ``MerweScaledSigmaPoints`` running
+   the *same* model (``fx``/``hx`` wrap ``f``/``h``; filterpy calls ``fx``
+   once per sigma point, so every point runs its own sub-step loop, where our
+   filters propagate all points as one ``(m, n, n)`` batch). Every filter is
+   fed the same simulated drive (Graneville loam, ISO 8608 D, 10 m/s) and
+   timed per step with ``time.perf_counter_ns`` after a warm-up; median and
+   90th percentile. "state bytes": our immutable state value (mean and P or
+   S); filterpy's filter object with its work arrays (that is its state).
+2. **Estimator throughput** as a multiple of real time: the offline bag run
+   (:func:`~terrain_estimation.tools.estimate.estimate_bag`: bag reading,
+   deserialisation, adapter, estimator) on the two recorded bags, bag
+   duration from the log stamps over wall time; and the ROS-free core
+   (:class:`~terrain_estimation.estimators.soil_stiffness.SoilStiffnessEstimator`,
+   same configuration) fed a ``vehicle_sim`` run directly, with the time
+   spent inside the filter measured by a timing proxy. The µs-per-step column
+   shows where the time goes: filter < core < bag.
+3. **Simulator** (``vehicle_sim`` ``simulate()``) as a multiple of real time.
+4. **Machine**: CPU count and load average (other processes on the CPUs
+   preempt long steps first, so a p90 far above the median usually means a
+   busy machine), Python, numpy, ``OPENBLAS_NUM_THREADS`` (``make`` sets it to
+   1; a threaded BLAS only adds stalls on these 5 × 5 matrices).
+
+Nothing here asserts a time: the figures depend on the machine. ``--quick``
+is a short smoke run (a few hundred steps, 2 s drives, one repetition);
+``--json PATH`` also writes every figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import platform
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ROW_LABELS", "BenchConfig", "main", "run_bench", "format_report"]
+
+DT = 0.01  # filter step (s): 100 Hz, the estimator's rate
+SUBSTEPS = 10  # 1 kHz road sub-steps per step (MODELS.md A.10)
+BAGS_DIR = Path(__file__).resolve().parents[4] / "bags"  # the repository's bags/
+BAGS: tuple[tuple[str, str], ...] = (
+    ("quarter_car_graneville_iso_d_10ms", "quarter_car"),
+    ("lrv_regolith_iso_g_2ms", "lrv"),
+)
+OUR_FILTERS: tuple[tuple[str, str], ...] = (("SCKF", "sckf"), ("CKF", "ckf"), ("UKF", "ukf"), ("EKF", "ekf"))
+FILTERPY_LABEL = "filterpy UKF (Merwe)"
+
+#: Every row label the report prints (the smoke test checks them all).
+ROW_LABELS: tuple[str, ...] = (
+    "machine:",
+    *(label for label, _ in OUR_FILTERS),
+    FILTERPY_LABEL,
+    *(f"bag {name}" for name, _ in BAGS),
+    "core quarter_car",
+    "core lrv",
+    "simulate quarter_car",
+    "simulate lrv",
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class BenchConfig:
+    """How much to measure.
+
+    Attributes:
+        steps: timed filter steps per filter (after the warm-up).
+        warmup: untimed filter steps first (caches, branch predictors, lazy imports).
+        drive_s: simulated drive (s) of the core and simulator rows.
+        repeats: timed repetitions of each bag run (the median is reported).
+        seed: seed of the simulated drives.
+    """
+
+    steps: int = 2000
+    warmup: int = 200
+    drive_s: float = 10.0
+    repeats: int = 3
+    seed: int = 12
+
+    @classmethod
+    def quick(cls) -> BenchConfig:
+        return cls(steps=200, warmup=20, drive_s=2.0, repeats=1)
+
+
+# ---------------------------------------------------------------------------
+# Helpers
+# ---------------------------------------------------------------------------
+
+
+def machine_info() -> dict[str, Any]:
+    """CPU count, platform, Python, numpy and BLAS thread settings."""
+    load: float | None
+    try:
+        load = os.getloadavg()[0]  # other processes share the CPUs: p90s grow with it
+    except (AttributeError, OSError):  # not on every platform
+        load = None
+    return {
+        "cpu_count": os.cpu_count(),
+        "load_avg_1min": load,
+        "platform": f"{platform.system()} {platform.machine()}",
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "unset"),
+        "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "unset"),
+    }
+
+
+def _percentiles_us(samples_ns: Sequence[int]) -> tuple[float, float]:
+    arr = np.asarray(samples_ns, dtype=float) * 1e-3
+    return float(np.median(arr)), float(np.percentile(arr, 90))
+
+
+def _deep_bytes(obj: Any) -> int:
+    """Bytes of an object, its ``__dict__``/dataclass fields and the numpy arrays it holds (one level)."""
+    total = sys.getsizeof(obj)
+    if dataclasses.is_dataclass(obj):
+        values = [getattr(obj, f.name) for f in dataclasses.fields(obj)]
+    else:
+        d = getattr(obj, "__dict__", {})
+        total += sys.getsizeof(d)
+        values = list(d.values())
+    for v in values:
+        if isinstance(v, np.ndarray):
+            total += sys.getsizeof(v) + (v.nbytes if v.base is not None else 0)
+        elif dataclasses.is_dataclass(v) or hasattr(v, "__dict__"):
+            if isinstance(v, type) or callable(v):
+                continue
+            for a in getattr(v, "__dict__", {}).values():
+                if isinstance(a, np.ndarray):
+                    total += sys.getsizeof(a) + (a.nbytes if a.base is not None else 0)
+    return total
+
+
+def _drive_quarter_car(duration: float, seed: int) -> Any:
+    """The quarter-car bag's world (Graneville loam, ISO D seed 11, 10 m/s), simulated."""
+    from vehicle_sim.plants.quarter_car import QuarterCarVehicle, Scenario, SpeedProfile, simulate
+    from vehicle_sim.terrain.profiles import iso8608_profile
+    from vehicle_sim.terrain.soils import GRANEVILLE_LOAM, SoilPath
+
+    scenario = Scenario(
+        profile=iso8608_profile("D", 11), soil_path=SoilPath(GRANEVILLE_LOAM), speed=SpeedProfile.constant(10.0)
+    )
+    return simulate(QuarterCarVehicle(), scenario, duration, seed)
+
+
+def _drive_lrv(duration: float, seed: int) -> Any:
+    """The LRV bag's world (lunar regolith, ISO G seed 21, 2 m/s), simulated."""
+    from vehicle_sim.plants.quarter_car import LRVVehicle, Scenario, SpeedProfile, simulate
+    from vehicle_sim.terrain.profiles import iso8608_profile
+    from vehicle_sim.terrain.soils import LUNAR_REGOLITH, SoilPath
+
+    scenario = Scenario(
+        profile=iso8608_profile("G", 21), soil_path=SoilPath(LUNAR_REGOLITH), speed=SpeedProfile.constant(2.0)
+    )
+    return simulate(LRVVehicle(), scenario, duration, seed)
+
+
+# ---------------------------------------------------------------------------
+# 1. Filter step
+# ---------------------------------------------------------------------------
+
+
+def _filter_data(n_steps: int, seed: int) -> tuple[Any, Any, Any]:
+    """Sub-step inputs ``(n_steps, 10)`` (m/s), measurements ``(n_steps, 2)`` (m/s², gravity removed)
+    and the simulation result, from a quarter-car drive of ``n_steps`` filter steps."""
+    from terrain_estimation.analysis.pcrlb import quarter_car_truth
+
+    result = _drive_quarter_car(n_steps * DT, seed)
+    _, inputs = quarter_car_truth(result, SUBSTEPS / DT)
+    assert result.wheel_accel_z is not None
+    z = np.column_stack([result.body_accel_z, result.wheel_accel_z]) - result.scenario.gravity
+    return inputs, z, result
+
+
+def bench_filters(cfg: BenchConfig) -> list[dict[str, Any]]:
+    """Per-step (predict + update) time of our four filters and of filterpy's UKF."""
+    from filterpy.kalman import MerweScaledSigmaPoints
+    from filterpy.kalman import UnscentedKalmanFilter as FilterpyUKF
+
+    from terrain_estimation.estimators.soil_stiffness import make_filter
+    from terrain_estimation.models.quarter_car import QuarterCarModel
+
+    n = cfg.warmup + cfg.steps
+    inputs, z, _ = _filter_data(n, cfg.seed)
+    model = QuarterCarModel()
+    x0 = np.array([0.0, 0.0, 0.0, 0.0, 0.5 * model.k_series])  # "half the tire stiffness" (A.5)
+    P0 = np.diag([1e-4, 1e-2, 1e-4, 1e-2, 50e3**2])  # noqa: N806 - the estimator's default P0
+
+    rows: list[dict[str, Any]] = []
+    final_ktot: dict[str, float] = {}
+    for label, name in OUR_FILTERS:
+        filt = make_filter(name)
+        state = filt.initial_state(x0, P0)
+        times: list[int] = []
+        for k in range(n):
+            u = inputs[k]
+            t0 = time.perf_counter_ns()
+            state = filt.predict(state, model, u, DT)
+            state, _ = filt.update(state, z[k], model, u)
+            t1 = time.perf_counter_ns()
+            if k >= cfg.warmup:
+                times.append(t1 - t0)
+        med, p90 = _percentiles_us(times)
+        final_ktot[name] = float(state.x[-1])
+        rows.append(
+            {"filter": label, "median_us": med, "p90_us": p90, "steps": len(times), "state_bytes": _deep_bytes(state)}
+        )
+
+    # filterpy: same model, same data; fx/hx see one sigma point (n,) at a time.
+    def fx(x: Any, dt: float, u: Any) -> Any:
+        return model.f(x, u, dt)
+
+    def hx(x: Any, u: Any) -> Any:
+        return model.h(x, u)
+
+    points = MerweScaledSigmaPoints(5, alpha=1.0, beta=2.0, kappa=0.0)  # = our UKF's defaults
+    ukf = FilterpyUKF(dim_x=5, dim_z=2, dt=DT, hx=hx, fx=fx, points=points)
+    ukf.x = x0.copy()
+    ukf.P = P0.copy()
+    Lr = model.measurement_noise_sqrt()  # noqa: N806
+    ukf.R = Lr @ Lr.T
+    times = []
+    for k in range(n):
+        u = inputs[k]
+        t0 = time.perf_counter_ns()
+        # Q_k at the prior mean, as our filters take it (process_noise_sqrt).
+        Lq = model.process_noise_sqrt(ukf.x, u, DT)  # noqa: N806
+        ukf.Q = Lq @ Lq.T
+        ukf.predict(u=u)
+        ukf.update(z[k], u=u)
+        t1 = time.perf_counter_ns()
+        if k >= cfg.warmup:
+            times.append(t1 - t0)
+    med, p90 = _percentiles_us(times)
+    ours = next(r for r in rows if r["filter"] == "UKF")
+    rows.append(
+        {
+            "filter": FILTERPY_LABEL,
+            "median_us": med,
+            "p90_us": p90,
+            "steps": len(times),
+            "state_bytes": _deep_bytes(ukf),
+            # Same model, same sigma points: the estimates must agree (a check
+            # that the comparison is like for like).
+            "final_ktot_diff_vs_ours_N_per_m": abs(float(ukf.x[-1]) - final_ktot["ukf"]),
+        }
+    )
+    for r in rows:
+        r["ratio_to_our_ukf"] = r["median_us"] / ours["median_us"]
+    return rows
+
+
+# ---------------------------------------------------------------------------
+# 2. Estimator throughput
+# ---------------------------------------------------------------------------
+
+
+def _bag_duration_s(path: Path) -> tuple[float, int]:
+    """(last − first log stamp (s), message count) of a bag."""
+    from terrain_estimation.bag import read_bag
+
+    first = last = None
+    count = 0
+    for item in read_bag(path):
+        first = item.log_time_ns if first is None else min(first, item.log_time_ns)
+        last = item.log_time_ns if last is None else max(last, item.log_time_ns)
+        count += 1
+    if first is None or last is None:
+        return 0.0, 0
+    return (last - first) * 1e-9, count
+
+
+def bench_bag(path: Path, vehicle: str, repeats: int) -> dict[str, Any]:
+    """``estimate_bag`` wall time over the bag (median of ``repeats`` after one untimed run)."""
+    from terrain_estimation.tools.estimate import estimate_bag
+
+    duration, messages = _bag_duration_s(path)
+    run = estimate_bag(path, vehicle)  # untimed: imports, typestore, caches
+    walls = []
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        run = estimate_bag(path, vehicle)
+        walls.append(time.perf_counter() - t0)
+    wall = float(np.median(walls))
+    steps = len(run.outputs)
+    return {
+        "row": f"bag {path.name}",
+        "vehicle": vehicle,
+        "sim_s": duration,
+        "wall_s": wall,
+        "x_real_time": duration / wall if wall > 0 else math.inf,
+        "steps": steps,
+        "us_per_step": 1e6 * wall / steps if steps else math.nan,
+        "messages": messages,
+    }
+
+
+class _TimedFilter:
+    """Delegates to a filter and accumulates the time spent in predict and update."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+        self.ns = 0
+        self.steps = 0
+
+    def initial_state(self, x0: Any, P0: Any) -> Any:  # noqa: N803
+        return self.inner.initial_state(x0, P0)
+
+    def predict(self, *args: Any, **kwargs: Any) -> Any:
+        t0 = time.perf_counter_ns()
+        try:
+            return self.inner.predict(*args, **kwargs)
+        finally:
+            self.ns += time.perf_counter_ns() - t0
+            self.steps += 1
+
+    def update(self, *args: Any, **kwargs: Any) -> Any:
+        t0 = time.perf_counter_ns()
+        try:
+            return self.inner.update(*args, **kwargs)
+        finally:
+            self.ns += time.perf_counter_ns() - t0
+
+
+def bench_core(vehicle: str, result: Any) -> dict[str, Any]:
+    """The ROS-free estimator core fed a simulator run in the bag's order (profile, then IMU)."""
+    from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimator, make_filter
+    from terrain_estimation.ros.soil_stiffness import estimator_config
+    from terrain_estimation.vehicles import estimator_parameters, get_vehicle
+
+    config = estimator_config(estimator_parameters(get_vehicle(vehicle)))  # as the bag run
+    timed = _TimedFilter(make_filter(config.filter))
+    est = SoilStiffnessEstimator(config, filter_impl=timed)
+    # Plain Python lists: the loop below should time the estimator, not numpy indexing.
+    pt, ps, ph = (a.tolist() for a in (result.profile.t, result.profile.distance, result.profile.elevation))
+    ta = result.t.tolist()
+    fb = result.body_accel_z.tolist()
+    fw = result.wheel_accel_z.tolist() if result.wheel_accel_z is not None else [None] * len(ta)
+    j = 0
+    t0 = time.perf_counter()
+    for i, t in enumerate(ta):
+        while j < len(pt) and pt[j] <= t + 1e-9:
+            est.add_profile_sample(pt[j], ps[j], ph[j])
+            j += 1
+        est.add_accelerations(t, fb[i], fw[i])
+    wall = time.perf_counter() - t0
+    steps = est.counters.steps
+    duration = float(result.t[-1])
+    return {
+        "row": f"core {vehicle}",
+        "vehicle": vehicle,
+        "sim_s": duration,
+        "wall_s": wall,
+        "x_real_time": duration / wall if wall > 0 else math.inf,
+        "steps": steps,
+        "us_per_step": 1e6 * wall / steps if steps else math.nan,
+        "filter_us_per_step": 1e-3 * timed.ns / timed.steps if timed.steps else math.nan,
+        "filter_share": 1e-9 * timed.ns / wall if wall > 0 else math.nan,
+    }
+
+
+# ---------------------------------------------------------------------------
+# 3. Simulator
+# ---------------------------------------------------------------------------
+
+
+def bench_simulator(vehicle: str, drive: Callable[[float, int], Any], cfg: BenchConfig) -> tuple[dict[str, Any], Any]:
+    """``simulate()`` wall time for ``cfg.drive_s``; also returns the run (it feeds the core row)."""
+    drive(0.1, cfg.seed)  # untimed: profile caches, imports
+    t0 = time.perf_counter()
+    result = drive(cfg.drive_s, cfg.seed)
+    wall = time.perf_counter() - t0
+    row = {
+        "row": f"simulate {vehicle}",
+        "vehicle": vehicle,
+        "sim_s": cfg.drive_s,
+        "wall_s": wall,
+        "x_real_time": cfg.drive_s / wall if wall > 0 else math.inf,
+        "steps": int(result.t.size),
+        "us_per_step": 1e6 * wall / result.t.size,
+    }
+    return row, result
+
+
+# ---------------------------------------------------------------------------
+# Report
+# ---------------------------------------------------------------------------
+
+
+def run_bench(cfg: BenchConfig, bags_dir: Path = BAGS_DIR) -> dict[str, Any]:
+    """Every figure of the report, as a JSON-able dict."""
+    out: dict[str, Any] = {"machine": machine_info(), "config": dataclasses.asdict(cfg)}
+    out["filters"] = bench_filters(cfg)
+    sim_qc, run_qc = bench_simulator("quarter_car", _drive_quarter_car, cfg)
+    sim_lrv, run_lrv = bench_simulator("lrv", _drive_lrv, cfg)
+    throughput = []
+    for name, vehicle in BAGS:
+        throughput.append(bench_bag(bags_dir / name, vehicle, cfg.repeats))
+    throughput.append(bench_core("quarter_car", run_qc))
+    throughput.append(bench_core("lrv", run_lrv))
+    out["throughput"] = throughput
+    out["simulator"] = [sim_qc, sim_lrv]
+    return out
+
+
+def format_report(figures: dict[str, Any]) -> str:
+    """The readable table."""
+    m = figures["machine"]
+    cfg = figures["config"]
+    load = "n/a" if m["load_avg_1min"] is None else f"{m['load_avg_1min']:.1f}"
+    lines = [
+        f"machine: {m['cpu_count']} CPUs (load average {load}), {m['platform']}, "
+        f"Python {m['python']}, numpy {m['numpy']}, "
+        f"OPENBLAS_NUM_THREADS={m['OPENBLAS_NUM_THREADS']}, OMP_NUM_THREADS={m['OMP_NUM_THREADS']}",
+        "",
+        f"Filter step (predict + update), QuarterCarModel n=5 p=2, {SUBSTEPS} road sub-steps per {DT * 1e3:.0f} ms "
+        f"step, {cfg['steps']} steps after {cfg['warmup']} warm-up",
+        f"  {'filter':<22}{'median µs':>11}{'p90 µs':>10}{'× our UKF':>11}{'state bytes':>13}",
+    ]
+    for r in figures["filters"]:
+        lines.append(
+            f"  {r['filter']:<22}{r['median_us']:>11.1f}{r['p90_us']:>10.1f}{r['ratio_to_our_ukf']:>11.2f}"
+            f"{r['state_bytes']:>13d}"
+        )
+    fp = next(r for r in figures["filters"] if r["filter"] == FILTERPY_LABEL)
+    lines.append(
+        f"  (filterpy runs the same model and sigma points: final k_tot differs from our UKF by "
+        f"{fp['final_ktot_diff_vs_ours_N_per_m']:.3g} N/m; state bytes: ours = the state value, "
+        "filterpy = the filter object)"
+    )
+    lines += [
+        "",
+        "Estimator throughput (× real time = simulated or recorded seconds per wall second)",
+        f"  {'what':<44}{'sim s':>7}{'wall s':>9}{'× real time':>13}{'µs/step':>10}{'filter µs/step':>16}",
+    ]
+    for r in figures["throughput"]:
+        filt = f"{r['filter_us_per_step']:.0f} ({100 * r['filter_share']:.0f} %)" if "filter_us_per_step" in r else "-"
+        lines.append(
+            f"  {r['row']:<44}{r['sim_s']:>7.2f}{r['wall_s']:>9.3f}{r['x_real_time']:>13.1f}"
+            f"{r['us_per_step']:>10.0f}{filt:>16}"
+        )
+    lines.append(
+        "  (bag = read + deserialise + adapter + estimator; core = estimator alone, same config; "
+        "filter = predict + update inside it)"
+    )
+    lines += [
+        "",
+        "Simulator (vehicle_sim simulate(), RK4 at 1 ms, 1 kHz profile)",
+        f"  {'what':<44}{'sim s':>7}{'wall s':>9}{'× real time':>13}{'µs/step':>10}",
+    ]
+    for r in figures["simulator"]:
+        lines.append(
+            f"  {r['row']:<44}{r['sim_s']:>7.2f}{r['wall_s']:>9.3f}{r['x_real_time']:>13.1f}{r['us_per_step']:>10.0f}"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="terrain-bench",
+        description="Time the filters, the estimator (core and over the recorded bags) and the simulator.",
+    )
+    parser.add_argument("--quick", action="store_true", help="short smoke run (few steps, 2 s drives)")
+    parser.add_argument("--json", metavar="PATH", help="also write every figure to this JSON file")
+    parser.add_argument("--bags", metavar="DIR", default=str(BAGS_DIR), help="directory of the recorded bags")
+    args = parser.parse_args(argv)
+    cfg = BenchConfig.quick() if args.quick else BenchConfig()
+    figures = run_bench(cfg, Path(args.bags))
+    print(format_report(figures))
+    if args.json:
+        path = Path(args.json)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(figures, indent=2) + "\n")
+        print(f"\nwrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
