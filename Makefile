@@ -65,7 +65,7 @@ unit: setup
 
 test: setup lint typecheck unit
 
-bench: setup
+bench: setup  ## per-step filter cost (ours vs filterpy), bag throughput, simulator speed
 	$(PY) -m terrain_estimation.tools.bench
 
 # Long reproductions of the papers' results (not part of make test).
