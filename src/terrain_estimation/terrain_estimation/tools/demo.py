@@ -265,7 +265,7 @@ def _table(results: Sequence[DemoResult]) -> str:
                 r.scenario.vehicle,
                 f"{r.sim_time:.1f}",
                 f"{r.wall_time:.1f}",
-                str(r.times.size),
+                f"{r.times.size}/{r.expected_estimates}",
                 f"{r.k_s[-1] / 1e3:.1f}",
                 f"{r.true_k_s[-1] / 1e3:.1f}",
                 f"{100 * r.rel_error[-1]:.2f}",
