@@ -1,81 +1,31 @@
 """Executable of the simulator nodes: ``terrain-sim-node --vehicle V``.
 
 Publishes ``/clock`` and the vehicle's sensor and ``ground_truth/*`` topics at
-the contract rates. ``config/<vehicle>.yaml`` (or ``--config``) is applied as
-parameter overrides; ``--ros-args`` apply on top.
+the contract rates, with ``config/<vehicle>.yaml`` (or ``--config``) as the
+first parameter file; see :mod:`terrain_estimation.ros.executable` for how
+command-line parameters combine with it.
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
-from pathlib import Path
+from typing import Any
 
-import rclpy
-from rclpy.parameter import Parameter
-
-from terrain_estimation.params import ParameterError, load_parameter_file
-from terrain_estimation.ros.framework import SimulatorNode, spin_node
+from terrain_estimation.ros.executable import build_node, node_main
+from terrain_estimation.ros.framework import SimulatorNode
 from vehicle_sim.ros.registry import SIMULATORS, get_simulator
 
 __all__ = ["make_simulator_node", "main"]
 
 
-def make_simulator_node(
-    vehicle: str,
-    *,
-    namespace: str | None = None,
-    config: str | None = None,
-    overrides: dict[str, object] | None = None,
-    use_config: bool = True,
-    **node_kwargs: object,
-) -> SimulatorNode:
-    """Build the simulator node of ``vehicle`` in-process.
-
-    With ``use_config`` the config file (default ``config/<vehicle>.yaml``) and
-    then ``overrides`` become the node's parameter overrides (they win over the
-    command line; the executable passes the file to rcl instead).
-    """
-    entry = get_simulator(vehicle)
-    path = config or entry.config_path()
-    values = {}
-    if use_config and (config or entry.config_path().exists()):
-        values = load_parameter_file(path, [entry.node_name])
-    values.update(overrides or {})
-    params = [Parameter(name, value=value) for name, value in values.items()]
-    return SimulatorNode(
-        entry.node_name,
-        entry.specs,
-        entry.make_adapter,
-        namespace=namespace if namespace is not None else entry.namespace,
-        parameter_overrides=params,
-        **node_kwargs,
-    )
+def make_simulator_node(vehicle: str, **kwargs: Any) -> SimulatorNode:
+    """The simulator node of ``vehicle``, in-process (arguments of :func:`build_node`)."""
+    return build_node(SimulatorNode, get_simulator(vehicle), **kwargs)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args_in = list(sys.argv[1:] if argv is None else argv)
-    ros_args = args_in[args_in.index("--ros-args") :] if "--ros-args" in args_in else []
-    own = args_in[: len(args_in) - len(ros_args)]
-    parser = argparse.ArgumentParser(prog="terrain-sim-node", description=__doc__.splitlines()[0])
-    parser.add_argument("--vehicle", required=True, choices=sorted(SIMULATORS))
-    parser.add_argument("--config", help="parameter file (default: config/<vehicle>.yaml)")
-    args = parser.parse_args(own)
-    config = args.config or str(get_simulator(args.vehicle).config_path())
-    # The config file goes to rcl first: the user's own --ros-args (-p name:=value,
-    # --params-file) come later and win. (Node parameter_overrides would win
-    # over the command line, so the file is not passed that way here.)
-    rcl_args = ["--ros-args", "--params-file", config] if Path(config).exists() else []
-    rclpy.init(args=["terrain-sim-node", *rcl_args, *ros_args])
-    try:
-        node = make_simulator_node(args.vehicle, config=None, use_config=False)
-    except (ParameterError, ValueError) as exc:
-        print(f"terrain-sim-node: error: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    spin_node(node)
-    return 0
+    return node_main("terrain-sim-node", __doc__.splitlines()[0], SIMULATORS, SimulatorNode, argv)
 
 
 if __name__ == "__main__":
