@@ -36,3 +36,21 @@ def test_every_parameter_has_a_comment_and_validates(vehicle):
     sim_specs = tuple(SimulatorNode.COMMON_SPECS) + tuple(sim.specs)
     resolve_parameters(est_specs, load_parameter_file(path, [entry.node_name]), strict=True)
     resolve_parameters(sim_specs, load_parameter_file(path, [sim.node_name]), strict=True)
+
+
+@pytest.mark.parametrize("vehicle", sorted(VEHICLES))
+def test_p0_of_the_stiffness_state_is_checked_against_its_units(vehicle):
+    """A k_tot variance left in filter.p0_diag after switching to log_k_s (or the reverse) is an error."""
+    from terrain_estimation.ros.soil_stiffness import estimator_config
+    from terrain_estimation.vehicles import estimator_parameters
+
+    entry = VEHICLES[vehicle]
+    values = estimator_parameters(entry)
+    assert estimator_config(values).vehicle_params.stiffness_state == "log_k_s"  # the node's default
+    p0 = list(values["filter.p0_diag"])
+    with pytest.raises(ValueError, match=r"filter.p0_diag\[-1\] = 2.25 is a k_tot variance"):
+        estimator_config({**values, "filter.stiffness_state": "k_tot"})
+    with pytest.raises(ValueError, match=r"filter.p0_diag\[-1\] = 2.5e\+09 is the variance of ln"):
+        estimator_config({**values, "filter.p0_diag": [*p0[:-1], 50e3**2]})
+    cfg = estimator_config({**values, "filter.stiffness_state": "k_tot", "filter.p0_diag": [*p0[:-1], 50e3**2]})
+    assert cfg.vehicle_params.stiffness_state == "k_tot"

@@ -336,3 +336,76 @@ def test_core_does_not_import_ros() -> None:
         "sys.exit(1 if any(m.startswith('rclpy') for m in sys.modules) else 0)"
     )
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
+
+
+# -- the "log_k_s" stiffness state -------------------------------------------------
+
+
+def _log_models() -> tuple[QuarterCarModel, QuarterCarModel]:
+    return QuarterCarModel(), QuarterCarModel(QuarterCarParams(stiffness_state="log_k_s"))
+
+
+def test_log_state_maps_to_the_same_dynamics() -> None:
+    lin, log = _log_models()
+    s = log.stiffness_state_of_ktot(KTOT_GRANEVILLE)
+    # s = ln(k_s / k_t): Graneville loam's 651.1 kN/m
+    assert s == pytest.approx(math.log(651.1e3 / KT), rel=1e-12)
+    assert float(log.ktot_of(s)) == pytest.approx(KTOT_GRANEVILLE, rel=1e-12)
+    x_log = X_NOM.copy()
+    x_log[-1] = s
+    for u in (U_SUB, 0.3):
+        y_lin, y_log = lin.f(X_NOM, u, 0.01), log.f(x_log, u, 0.01)
+        np.testing.assert_allclose(y_log[:-1], y_lin[:-1], rtol=1e-10, atol=1e-14)
+        assert y_log[-1] == s  # random walk: unchanged by the dynamics
+    np.testing.assert_allclose(log.h(x_log, U_SUB), lin.h(X_NOM, U_SUB), rtol=1e-10, atol=1e-12)
+
+
+def test_log_state_keeps_ktot_inside_the_series_stiffness() -> None:
+    _, log = _log_models()
+    s = np.array([-1e6, -40.0, -5.0, 0.0, 5.0, 40.0, 1e6])
+    k = log.ktot_of(s)
+    assert np.all(k > 0.0) and np.all(k < KT)
+    assert float(log.ktot_of(0.0)) == pytest.approx(KT / 2)  # the paper's start guess k_t/2
+    # k_s stays finite and positive at any state, even far beyond the clip.
+    for v in (-1e6, 0.0, 1e6):
+        k_tot, k_var, k_s, k_s_var = log.stiffness_moments(v, 0.04)
+        assert all(math.isfinite(q) for q in (k_tot, k_var, k_s, k_s_var))
+        assert k_s > 0.0
+    k_tot, _, k_s, k_s_var = log.stiffness_moments(math.log(651.1e3 / KT), 0.01)
+    assert k_s == pytest.approx(651.1e3, rel=1e-12)
+    assert math.sqrt(k_s_var) / k_s == pytest.approx(0.1, rel=1e-12)  # var of ln k_s = relative variance
+    # Non-finite variance is reported as "unknown", never NaN.
+    assert math.isfinite(log.stiffness_moments(0.0, float("nan"))[3])
+
+
+@pytest.mark.parametrize("form", ["exact", "paper"])
+def test_log_state_jacobians_match_central_differences(form: str) -> None:
+    log = QuarterCarModel(QuarterCarParams(stiffness_state="log_k_s", ekf_jacobian=form))
+    x = X_NOM.copy()
+    x[-1] = log.stiffness_state_of_ktot(KTOT_GRANEVILLE)
+    scales = np.array([0.01, 0.1, 0.01, 0.1, 1.0])
+    hx = log.measurement_jacobian(x, U_SUB)
+    hx_fd = _fd_jacobian(lambda v: log.h(v, U_SUB), x, scales)
+    np.testing.assert_allclose(hx, hx_fd, rtol=1e-7, atol=1e-12)
+    if form == "exact":
+        jac = log.transition_jacobian(x, U_SUB, 0.01)
+        jac_fd = _fd_jacobian(lambda v: log.f(v, U_SUB, 0.01), x, scales)
+        err = np.linalg.norm(jac - jac_fd, axis=0) / np.linalg.norm(jac_fd, axis=0)
+        assert err.max() < 1e-6, err
+
+
+def test_log_state_process_noise_is_the_relative_walk() -> None:
+    lin, log = _log_models()
+    q = 4e-6
+    log = QuarterCarModel(QuarterCarParams(stiffness_state="log_k_s", q_log_ks_per_step=q))
+    x = X_NOM.copy()
+    x[-1] = log.stiffness_state_of_ktot(KTOT_GRANEVILLE)
+    lq_log = log.process_noise_sqrt(x, U_SUB, 0.02)
+    lq_lin = lin.process_noise_sqrt(X_NOM, U_SUB, 0.02)
+    np.testing.assert_allclose(lq_log[:-1, :-1], lq_lin[:-1, :-1], rtol=1e-12)
+    assert lq_log[-1, -1] == pytest.approx(math.sqrt(q * 2.0))  # scales with the step: 0.02 s = 2 steps
+    assert not np.any(lq_log[-1, :-1]) and not np.any(lq_log[:-1, -1])
+    with pytest.raises(ValueError, match="stiffness_state"):
+        QuarterCarParams(stiffness_state="ks")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="q_log_ks_per_step"):
+        LRVParams(q_log_ks_per_step=-1.0)

@@ -21,7 +21,7 @@ from terrain_estimation.estimators.soil_stiffness import (
     SoilStiffnessEstimatorConfig,
     make_filter,
 )
-from terrain_estimation.models.quarter_car import LRVParams
+from terrain_estimation.models.quarter_car import LRVParams, QuarterCarParams
 from terrain_estimation.models.soil import k_tot_from_k_s
 
 G = 9.80665
@@ -426,3 +426,29 @@ def test_lrv_hdot_fit_and_inflated_measurement_noise() -> None:
     rs = est._measurement_noise_sqrt(x, 1, seen[-1][2])
     g = np.array([x[-1] / 75.0 - 20.0**2, 20.0])
     assert (rs @ rs.T)[0, 0] == pytest.approx(0.5 + g @ seen[-1][2] @ g, rel=1e-12)
+
+
+@pytest.mark.parametrize("state", ["k_tot", "log_k_s"])
+def test_both_stiffness_states_converge_and_follow_a_soil_change(state: str) -> None:
+    """The node's default "log_k_s" state and the paper's "k_tot" state, soil change included."""
+    _need("sckf")
+    change_at = 5.0
+
+    def soil(t: float) -> float:
+        return KS_GRANEVILLE if t < change_at else KS_UPLAND
+
+    run = (*_simulate_quarter_car(soil, 8.0, 10.0), 10.0)
+    cfg = SoilStiffnessEstimatorConfig(quarter_car=QuarterCarParams(stiffness_state=state))  # type: ignore[arg-type]
+    est = SoilStiffnessEstimator(cfg)
+    out, _ = _drive(est, run)
+    tt, err_g, _ = _errors(out, KS_GRANEVILLE, 0.0)
+    before = (tt > 2.0) & (tt < change_at)
+    assert np.abs(err_g[before]).max() < 5.0
+    alarms = [e.t for e in out if e.soil_change_detected]
+    assert len(alarms) == 1 and change_at < alarms[0] < change_at + 0.5
+    tt, err_u, _ = _errors(out, KS_UPLAND, 0.0)
+    assert np.abs(err_u[tt > change_at + 1.0]).max() < 5.0
+    assert all(math.isfinite(e.k_s) and e.k_s > 0 and math.isfinite(e.k_s_variance) for e in out)
+    if state == "log_k_s":
+        # ln k_s is the state: the reported k_tot never reaches the tire stiffness
+        assert max(e.k_tot for e in out) < KT

@@ -133,6 +133,18 @@ estimate has converged. On an alarm the k_tot variance is re-opened
 error falls below 5 % 0.5 s after the change instead of ≈ 6 s with the
 per-step random walk alone.
 
+**The stiffness state.** The model's last state is either k_tot itself (the
+paper's P-5, ``stiffness_state="k_tot"``, the core's default and the one the
+reproduction tables use) or ``s = ln(k_s/k_series)`` (``"log_k_s"``, the node's
+default). With k_tot, the first updates sometimes overshoot k̂_tot towards
+k_series, where ``k_s = k_tot k_series/(k_series − k_tot)`` explodes (2 runs in
+100 of the paper's case 1 reach the clamp, k̂_s ≈ 1000 k_series for a few steps;
+MODELS.md A.10.4). With ln k_s every cubature point maps to a k_tot inside
+``(0, k_series)`` and k̂_s is always finite and positive; on case 1 (100 runs)
+the mean RMSE over 0–10 s drops from 21.5 % to 4.8 % (median 4.6 → 4.5 %), the
+steady state is unchanged (1.03 → 1.00 %). The re-open on a soil change is
+then ``change_log_ks_std`` in ln k_s.
+
 **Never NaN.** Non-finite arguments are rejected at the entry (counted); the
 filter's posterior mean of k_tot is projected into the model's clamp range
 (a projection of the mean only, the covariance is kept); a non-finite
@@ -166,7 +178,6 @@ from terrain_estimation.models.soil import (
     CusumDetector,
     SoilClass,
     classify_soil,
-    soil_stiffness_from_k_tot,
 )
 
 __all__ = [
@@ -191,6 +202,10 @@ FILTER_CLASSES: dict[str, tuple[str, str]] = {
 #: loosely known about rest, k_tot std ≈ 0.29 of the series stiffness.
 _P0_QUARTER_CAR = (1e-4, 1e-2, 1e-4, 1e-2, 50e3**2)
 _P0_LRV = (1e-4, 1e-2, 4.3e3**2)
+#: Last entry of P0 for the ``"log_k_s"`` state (ln units²): a std of 1.5 puts
+#: the 2σ prior range at k_series·e^±3, 0.05…20 times k_series, which covers
+#: every soil of Table 1 from the start guess k_s = k_series.
+P0_LOG_KS = 1.5**2
 
 
 def make_filter(name: str) -> Any:
@@ -227,7 +242,8 @@ class SoilStiffnessEstimatorConfig:
             reading of "half the tire stiffness", MODELS.md A.5).
         p0_diag: initial covariance diagonal (SI², state order); None → 2-DOF
             ``(1e-4, 1e-2, 1e-4, 1e-2, (50 kN/m)²)``, LRV
-            ``(1e-4, 1e-2, (4.3 kN/m)²)``.
+            ``(1e-4, 1e-2, (4.3 kN/m)²)``; with the ``"log_k_s"`` stiffness
+            state the last default entry is ``1.5²`` (ln units).
         gravity: subtracted from the specific forces (m/s²).
         convergence_rel_std: ``converged`` when ``√var(k_s)/k_s`` is below it.
         gate_threshold: NIS gate (χ²_p); None disables. A gated update leaves
@@ -243,6 +259,11 @@ class SoilStiffnessEstimatorConfig:
             few tenths of a second instead of walking there with the per-step
             random walk; 0 disables (the paper's filter, for reproduction).
             The detector re-arms once the estimate has converged again.
+            With the ``"log_k_s"`` stiffness state ``change_log_ks_std`` is
+            used instead.
+        change_log_ks_std: the same re-open for the ``"log_k_s"`` state: the
+            variance of ``ln k_s`` grows by its square (default 0.7: a factor
+            2 of k_s at one σ); 0 disables.
         profile_smoothing_s: window w (s) of the local quadratic fit of the
             profile (see module docstring); 0 = plain linear interpolation.
             Use ≈ 0.01–0.02 s for σ_h ≈ 0.5–1 mm.
@@ -293,6 +314,7 @@ class SoilStiffnessEstimatorConfig:
     change_drift: float = 1.0
     change_threshold: float = 50.0
     change_ktot_std_frac: float = 0.2
+    change_log_ks_std: float = 0.7
     profile_smoothing_s: float = 0.0
     profile_noise_std: float = 1e-4
     hdot_window_m: float = 0.06
@@ -329,6 +351,7 @@ class SoilStiffnessEstimatorConfig:
             "max_wait_s",
             "max_extrapolation_s",
             "change_ktot_std_frac",
+            "change_log_ks_std",
         )
         for name in non_negative:
             value = getattr(self, name)
@@ -575,14 +598,15 @@ class SoilStiffnessEstimator:
         self.filter = filter_impl if filter_impl is not None else make_filter(cfg.filter)
         n = self.model.state_dim
         k_series = self.model.k_series
-        self._k_tot0 = cfg.k_tot0 if cfg.k_tot0 is not None else 0.5 * k_series
+        k_tot0 = cfg.k_tot0 if cfg.k_tot0 is not None else 0.5 * k_series
+        self._stiffness0 = self.model.stiffness_state_of_ktot(k_tot0)
         p0 = cfg.p0_diag
         if p0 is None:
             p0 = _P0_QUARTER_CAR if cfg.vehicle == "quarter_car" else _P0_LRV
+            if self.model.stiffness_state == "log_k_s":
+                p0 = (*p0[:-1], P0_LOG_KS)
         self._p0 = np.asarray(p0, dtype=float)
         assert self._p0.shape == (n,)
-        kmin, kmax = self.model.ktot_bounds
-        self._clamp_frac = max(kmin / k_series, 1.0 - kmax / k_series)
         self._min_dt = 0.5 / cfg.filter_rate_hz
         # Feed-through of ḣ into the measurement (LRV relative damper)?
         self._feedthrough = bool(np.any(self.model.profile_error_gains(np.zeros(n))[1]))
@@ -705,23 +729,24 @@ class SoilStiffnessEstimator:
         return self._process_pending()
 
     # -- internals ------------------------------------------------------------
-    def _initial_state(self, k_tot: float, k_var: float | None) -> Any:
+    def _initial_state(self, stiffness: float, var: float | None) -> Any:
+        """Motion states at rest with P0; the stiffness state (model units) and its variance."""
         n = self.model.state_dim
         x0 = np.zeros(n)
-        x0[-1] = k_tot
+        x0[-1] = stiffness
         p0 = self._p0.copy()
-        if k_var is not None and math.isfinite(k_var) and k_var > 0:
-            p0[-1] = min(k_var, self.model.k_series**2)
+        if var is not None and math.isfinite(var) and var > 0:
+            p0[-1] = min(var, self.model.stiffness_state_max_variance)
         return self.filter.initial_state(x0, np.diag(p0))
 
     def _restart_motion(self) -> None:
-        """Motion states back to rest with P0; keep the last finite k_tot estimate."""
-        k, var = self._k_tot0, None
+        """Motion states back to rest with P0; keep the last finite stiffness estimate."""
+        k, var = self._stiffness0, None
         if self._state is not None:
             x = np.asarray(self._state.x, dtype=float)
             p = np.asarray(self._state.covariance, dtype=float)
             if math.isfinite(x[-1]) and math.isfinite(p[-1, -1]):
-                k, var = float(self.model.clamp_ktot(x[-1])), float(p[-1, -1])
+                k, var = self.model.project_stiffness_state(x[-1]), float(p[-1, -1])
         self._state = self._initial_state(k, var)
 
     def _ready(self, t: float) -> str:
@@ -744,7 +769,7 @@ class SoilStiffnessEstimator:
                 if self._pt and self._pt[0] <= t + _EPS_T:
                     self._pending.popleft()
                     self._t_prev = t
-                    self._state = self._initial_state(self._k_tot0, None)
+                    self._state = self._initial_state(self._stiffness0, None)
                     continue
                 if self._pt or self._ready(t) == "drop":
                     self._pending.popleft()
@@ -957,7 +982,7 @@ class SoilStiffnessEstimator:
             x = np.asarray(self._state.x, dtype=float)
             cov = np.asarray(self._state.covariance, dtype=float)
         else:
-            k_c = float(self.model.clamp_ktot(x[-1]))
+            k_c = self.model.project_stiffness_state(float(x[-1]))
             if k_c != x[-1]:
                 # Projection of the mean into the physical range (0, k_series).
                 x = x.copy()
@@ -976,21 +1001,21 @@ class SoilStiffnessEstimator:
             change = self._detector.update(e)
             if change:
                 self._c["soil_changes"] += 1
-                if cfg.change_ktot_std_frac > 0.0:
-                    # Re-open the k_tot variance: with the small per-step
+                reopen = (
+                    cfg.change_log_ks_std
+                    if self.model.stiffness_state == "log_k_s"
+                    else cfg.change_ktot_std_frac * self.model.k_series
+                )
+                if reopen > 0.0:
+                    # Re-open the stiffness variance: with the small per-step
                     # random walk (A.4) the filter would need seconds to walk
                     # to the new soil; with it, a few updates.
                     cov = cov.copy()
-                    cov[-1, -1] += (cfg.change_ktot_std_frac * self.model.k_series) ** 2
+                    cov[-1, -1] += reopen**2
                     self._state = self.filter.initial_state(x, cov)
                     self._was_converged = False
 
-        k_tot = float(x[-1])
-        k_var = float(cov[-1, -1])
-        if not (math.isfinite(k_var) and k_var >= 0.0):
-            k_var = self.model.k_series**2
-        k_series = self.model.k_series
-        k_s, k_s_var = soil_stiffness_from_k_tot(k_tot, k_var, k_series, self._clamp_frac)
+        k_tot, k_var, k_s, k_s_var = self.model.stiffness_moments(float(x[-1]), float(cov[-1, -1]))
         cls = classify_soil(k_s, k_s_var, cfg.soil_table, cfg.class_log_std, cfg.unknown_weight)
         converged = math.sqrt(k_s_var) < cfg.convergence_rel_std * k_s
         self._was_converged = self._was_converged or converged

@@ -58,6 +58,7 @@ posterior mean into the same range.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -65,6 +66,7 @@ import numpy as np
 import scipy.linalg
 
 from terrain_estimation.filters.base import Array
+from terrain_estimation.models.soil import soil_stiffness_from_k_tot
 
 __all__ = [
     "QuarterCarParams",
@@ -80,6 +82,11 @@ __all__ = [
 Discretisation = Literal["taylor4", "expm"]
 KtotNoiseForm = Literal["per_step", "printed"]
 JacobianForm = Literal["exact", "paper"]
+StiffnessState = Literal["k_tot", "log_k_s"]
+
+#: |s| bound of the ``"log_k_s"`` state s = ln(k_s/k_series): e^±30 covers any
+#: physical stiffness and keeps the logistic map and its slope finite.
+_LOG_KS_BOUND = 30.0
 
 
 def _check_common(
@@ -94,6 +101,8 @@ def _check_common(
     ekf_jacobian: str,
     ktot_min_frac: float,
     ktot_max_frac: float,
+    stiffness_state: str,
+    q_log_ks_per_step: float,
 ) -> None:
     if len(q_diag) != n or any(not np.isfinite(q) or q < 0 for q in q_diag):
         raise ValueError(f"q_diag must hold {n} finite non-negative variances, got {q_diag}")
@@ -111,6 +120,10 @@ def _check_common(
         raise ValueError(f"ekf_jacobian must be 'exact' or 'paper', got {ekf_jacobian!r}")
     if not (0.0 < ktot_min_frac < ktot_max_frac < 1.0):
         raise ValueError("need 0 < ktot_min_frac < ktot_max_frac < 1")
+    if stiffness_state not in ("k_tot", "log_k_s"):
+        raise ValueError(f"stiffness_state must be 'k_tot' or 'log_k_s', got {stiffness_state!r}")
+    if not (np.isfinite(q_log_ks_per_step) and q_log_ks_per_step >= 0):
+        raise ValueError(f"q_log_ks_per_step must be finite and >= 0, got {q_log_ks_per_step}")
 
 
 @dataclass(frozen=True)
@@ -140,6 +153,19 @@ class QuarterCarParams:
         ktot_min_frac: lower clamp of the k_tot used by the dynamics, as a
             fraction of ``k_t``.
         ktot_max_frac: upper clamp, fraction of ``k_t``.
+        stiffness_state: what the augmented last state is. ``"k_tot"``: k_tot
+            itself (the paper, P-5), clamped into ``(ktot_min_frac,
+            ktot_max_frac)·k_series`` where the dynamics use it.
+            ``"log_k_s"``: ``s = ln(k_s/k_series)``, so ``k_tot = k_series ·
+            logistic(s)`` lies in ``(0, k_series)`` for every sigma point and
+            the k_s recovered from it can neither go negative nor explode as
+            k_tot → k_series (MODELS.md A.10.4: the k_tot form overshoots to
+            the clamp in a few runs in ten). Its random walk is relative:
+            ``q_log_ks_per_step``.
+        q_log_ks_per_step: variance of the random walk of ``s = ln(k_s/k_series)``
+            per ``ktot_step_dt`` (``"log_k_s"`` only). Default 1e-6: a 0.1 %
+            relative walk of k_s per 10 ms step, which equals the k_tot walk
+            of 1e3 (N/m)² at Graneville loam on the quarter car.
     """
 
     m_s: float = 455.0
@@ -156,6 +182,8 @@ class QuarterCarParams:
     ekf_jacobian: JacobianForm = "exact"
     ktot_min_frac: float = 1e-3
     ktot_max_frac: float = 0.999
+    stiffness_state: StiffnessState = "k_tot"
+    q_log_ks_per_step: float = 1e-6
 
     def __post_init__(self) -> None:
         for name in ("m_s", "m_ns", "k", "k_t"):
@@ -176,6 +204,8 @@ class QuarterCarParams:
             self.ekf_jacobian,
             self.ktot_min_frac,
             self.ktot_max_frac,
+            self.stiffness_state,
+            self.q_log_ks_per_step,
         )
 
     @property
@@ -214,8 +244,8 @@ class LRVParams:
             fire (a 2× change of k_s on the LRV: rms error 22 % ten seconds
             later vs 7 % with 1e3, 3.7 % with 100).
         ktot_step_dt, ktot_noise_form, discretisation, ekf_jacobian,
-        ktot_min_frac, ktot_max_frac: as in :class:`QuarterCarParams`
-            (fractions of ``k``).
+        ktot_min_frac, ktot_max_frac, stiffness_state, q_log_ks_per_step: as
+            in :class:`QuarterCarParams` (fractions of ``k``).
     """
 
     m_s: float = 75.0
@@ -231,6 +261,8 @@ class LRVParams:
     ekf_jacobian: JacobianForm = "exact"
     ktot_min_frac: float = 1e-3
     ktot_max_frac: float = 0.999
+    stiffness_state: StiffnessState = "k_tot"
+    q_log_ks_per_step: float = 1e-6
 
     def __post_init__(self) -> None:
         for name in ("m_s", "k"):
@@ -251,6 +283,8 @@ class LRVParams:
             self.ekf_jacobian,
             self.ktot_min_frac,
             self.ktot_max_frac,
+            self.stiffness_state,
+            self.q_log_ks_per_step,
         )
 
     @property
@@ -414,6 +448,8 @@ class _BilinearKtotModel:
     _q_ktot_per_step: float
     _ktot_step_dt: float
     _jacobian_form: JacobianForm
+    _stiffness_state: StiffnessState = "k_tot"
+    _q_log_ks_per_step: float = 0.0
 
     def _finish_init(self) -> None:
         n = self._a0.shape[0]
@@ -467,6 +503,71 @@ class _BilinearKtotModel:
         """k_tot used by the dynamics: clipped into :attr:`ktot_bounds` (N/m)."""
         return np.clip(np.asarray(k_tot, dtype=float), self._kmin, self._kmax)
 
+    # -- the augmented stiffness state ("k_tot" or "log_k_s") ----------------
+    @property
+    def stiffness_state(self) -> StiffnessState:
+        """What the last state is: ``"k_tot"`` (N/m) or ``"log_k_s"`` (ln(k_s/k_series))."""
+        return self._stiffness_state
+
+    def ktot_of(self, v: Any) -> Array:
+        """k_tot (N/m) the dynamics use for the last-state value(s) ``v``.
+
+        ``"k_tot"``: ``v`` clamped into :attr:`ktot_bounds`; ``"log_k_s"``:
+        ``k_series · logistic(v)`` (``v`` clipped to ±30), always inside
+        ``(0, k_series)``.
+        """
+        v = np.asarray(v, dtype=float)
+        if self._stiffness_state == "log_k_s":
+            return self._k_series / (1.0 + np.exp(-np.clip(v, -_LOG_KS_BOUND, _LOG_KS_BOUND)))
+        return self.clamp_ktot(v)
+
+    def ktot_slope(self, v: float) -> float:
+        """``dk_tot/dv`` of :meth:`ktot_of` at one value (0 where clamped or clipped)."""
+        if self._stiffness_state == "log_k_s":
+            if abs(v) >= _LOG_KS_BOUND:
+                return 0.0
+            sig = 1.0 / (1.0 + math.exp(-v))
+            return self._k_series * sig * (1.0 - sig)
+        return 1.0 if self._kmin < v < self._kmax else 0.0
+
+    def stiffness_state_of_ktot(self, k_tot: float) -> float:
+        """The last-state value that represents ``k_tot`` (inverse of :meth:`ktot_of`)."""
+        k = float(self.clamp_ktot(k_tot))
+        if self._stiffness_state == "log_k_s":
+            return math.log(k / (self._k_series - k))
+        return k
+
+    def project_stiffness_state(self, v: float) -> float:
+        """Project a posterior value into the model's range (clamp or ±30 clip)."""
+        if self._stiffness_state == "log_k_s":
+            return float(np.clip(v, -_LOG_KS_BOUND, _LOG_KS_BOUND))
+        return float(self.clamp_ktot(v))
+
+    def stiffness_moments(self, v: float, var: float) -> tuple[float, float, float, float]:
+        """``(k_tot, var k_tot, k_s, var k_s)`` of a last-state mean and variance.
+
+        First-order propagation (MODELS.md A.2). ``"k_tot"``: k_s from P-3
+        inverted; ``"log_k_s"``: ``k_s = k_series e^v``, ``var k_s = k_s² var``
+        and ``var k_tot = (dk_tot/dv)² var``. Non-finite or negative variances
+        are reported as ``k_series²`` (k_tot form) or as a variance of 1 in
+        ln k_s (log form): unknown, never NaN.
+        """
+        if self._stiffness_state == "log_k_s":
+            s = float(np.clip(v, -_LOG_KS_BOUND, _LOG_KS_BOUND))
+            var_s = var if (math.isfinite(var) and var >= 0.0) else 1.0
+            k_s = self._k_series * math.exp(s)
+            slope = self.ktot_slope(s)
+            return float(self.ktot_of(s)), slope**2 * var_s, k_s, k_s**2 * var_s
+        k_var = var if (math.isfinite(var) and var >= 0.0) else self._k_series**2
+        clamp_frac = max(self._kmin / self._k_series, 1.0 - self._kmax / self._k_series)
+        k_s, k_s_var = soil_stiffness_from_k_tot(v, k_var, self._k_series, clamp_frac)
+        return float(v), k_var, k_s, k_s_var
+
+    @property
+    def stiffness_state_max_variance(self) -> float:
+        """Largest last-state variance a restart carries over."""
+        return 25.0 if self._stiffness_state == "log_k_s" else self._k_series**2
+
     def A(self, x: Array) -> Array:  # noqa: N802
         """Continuous state matrix ``A(x)`` (A.1) with the clamped k_tot.
 
@@ -477,7 +578,7 @@ class _BilinearKtotModel:
             ``(n, n)`` or ``(m, n, n)``.
         """
         x = np.asarray(x, dtype=float)
-        k = self.clamp_ktot(x[..., -1])
+        k = self.ktot_of(x[..., -1])
         return self._a0 + k[..., None, None] * self._e
 
     def C(self, x: Array) -> Array:  # noqa: N802
@@ -532,7 +633,7 @@ class _BilinearKtotModel:
             ``(p,)`` or ``(m, p)``.
         """
         x = np.asarray(x, dtype=float)
-        k = self.clamp_ktot(x[..., -1])
+        k = self.ktot_of(x[..., -1])
         z = x @ self._c0.T + k[..., None] * (x @ self._ce.T)
         if np.any(self._d):
             z = z + self._d * hdot_at_end(u)
@@ -565,7 +666,7 @@ class _BilinearKtotModel:
         """
         x = np.asarray(x, dtype=float)
         k_mean = float(np.mean(x[..., -1])) if x.size else 0.0
-        k_c = float(self.clamp_ktot(k_mean)) if np.isfinite(k_mean) else self._kmin
+        k_c = float(self.ktot_of(k_mean)) if np.isfinite(k_mean) else self._kmin
         c = self._c0 + k_c * self._ce
         return c @ self._b, self._d.copy()
 
@@ -581,7 +682,7 @@ class _BilinearKtotModel:
         """
         x = np.asarray(x, dtype=float)
         k_mean = float(np.mean(x[..., -1])) if x.size else 0.0
-        k_c = float(self.clamp_ktot(k_mean)) if np.isfinite(k_mean) else self._kmin
+        k_c = float(self.ktot_of(k_mean)) if np.isfinite(k_mean) else self._kmin
         dt = float(dt)
         cache = self._noise_cache
         if cache is not None and cache[0] == dt and cache[1] == k_c:
@@ -589,7 +690,10 @@ class _BilinearKtotModel:
         a = self._a0 + k_c * self._e
         _, gam = discretise(a, dt, self._method)
         lq = np.sqrt(dt) * (gam @ self._g) * self._sigma_q
-        if self._noise_form == "per_step":
+        if self._stiffness_state == "log_k_s":
+            lq[:, -1] = 0.0
+            lq[-1, -1] = np.sqrt(self._q_log_ks_per_step * dt / self._ktot_step_dt)
+        elif self._noise_form == "per_step":
             lq[:, -1] = 0.0
             lq[-1, -1] = np.sqrt(self._q_ktot_per_step * dt / self._ktot_step_dt)
         else:
@@ -599,9 +703,6 @@ class _BilinearKtotModel:
         return lq.copy()
 
     # -- Jacobians (EKF, A.6) -------------------------------------------------
-    def _clamp_slope(self, k: float) -> float:
-        return 1.0 if self._kmin < k < self._kmax else 0.0
-
     def transition_jacobian(self, x: Array, u: Any, dt: float) -> Array:
         """``∂f/∂x`` at one state ``(n,)``, shape ``(n, n)``.
 
@@ -622,8 +723,8 @@ class _BilinearKtotModel:
         delta = float(dt) / us.size
         n = self.state_dim
         k_raw = float(x[-1])
-        k = float(self.clamp_ktot(k_raw))
-        slope = self._clamp_slope(k_raw)
+        k = float(self.ktot_of(k_raw))
+        slope = self.ktot_slope(k_raw)
         a = self._a0 + k * self._e
         jac = np.eye(n)
         xj = x.copy()
@@ -660,9 +761,9 @@ class _BilinearKtotModel:
         if x.shape != (self.state_dim,):
             raise ValueError(f"x must have shape ({self.state_dim},), got {x.shape}")
         k_raw = float(x[-1])
-        k = float(self.clamp_ktot(k_raw))
+        k = float(self.ktot_of(k_raw))
         hx = self._c0 + k * self._ce
-        hx[:, -1] += (self._ce @ x) * self._clamp_slope(k_raw)
+        hx[:, -1] += (self._ce @ x) * self.ktot_slope(k_raw)
         return hx
 
 
@@ -714,6 +815,8 @@ class QuarterCarModel(_BilinearKtotModel):
         self._q_ktot_per_step = p.q_ktot_per_step
         self._ktot_step_dt = p.ktot_step_dt
         self._jacobian_form = p.ekf_jacobian
+        self._stiffness_state = p.stiffness_state
+        self._q_log_ks_per_step = p.q_log_ks_per_step
         self._finish_init()
 
 
@@ -761,4 +864,6 @@ class LRVModel(_BilinearKtotModel):
         self._q_ktot_per_step = p.q_ktot_per_step
         self._ktot_step_dt = p.ktot_step_dt
         self._jacobian_form = p.ekf_jacobian
+        self._stiffness_state = p.stiffness_state
+        self._q_log_ks_per_step = p.q_log_ks_per_step
         self._finish_init()

@@ -22,6 +22,7 @@ from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import Imu, JointState
 
 from terrain_estimation.estimators.soil_stiffness import (
+    P0_LOG_KS,
     SoilStiffnessEstimate,
     SoilStiffnessEstimator,
     SoilStiffnessEstimatorConfig,
@@ -79,14 +80,32 @@ def _filter_specs(kind: str) -> tuple[ParamSpec, ...]:
     lrv = kind == "lrv"
     # Section 4 of the paper; the LRV keeps states 1, 2 and 5 ("noise unchanged").
     q_diag = [1e-5, 1e-3, 1e5] if lrv else [1e-5, 1e-3, 1e-5, 1e-3, 1e5]
-    # Not given by the paper; MODELS.md A.5 values (k_tot std: 0.29 of the series stiffness).
-    p0_diag = [1e-4, 1e-2, 4.3e3**2] if lrv else [1e-4, 1e-2, 1e-4, 1e-2, 50e3**2]
-    state = "[y1-h, dy1, k_tot]" if lrv else "[y1-y2, dy1, y2-h, dy2, k_tot]"
+    # Not given by the paper; MODELS.md A.5 values for the motion states. The last
+    # entry is the stiffness state's: ln(k_s/k_series) with std 1.5 (2-sigma prior
+    # 0.05...20 times k_series) for the default log_k_s state.
+    p0_diag = [1e-4, 1e-2, P0_LOG_KS] if lrv else [1e-4, 1e-2, 1e-4, 1e-2, P0_LOG_KS]
+    state = "[y1-h, dy1, s]" if lrv else "[y1-y2, dy1, y2-h, dy2, s]"
     # Same relative random walk on both vehicles: 1e3 (N/m)^2 per step on the
     # quarter car's k_t = 175 kN/m, scaled by (15/175)^2 for the LRV's k = 15 kN/m.
     q_ktot = 7.35 if lrv else 1e3
+    # The same walks expressed in ln k_s at the reference soils (Graneville loam
+    # on the quarter car, regolith on the LRV): q_ktot / (dk_tot/ds)^2.
+    q_log = 6.4e-7 if lrv else 1e-6
     return _FILTER_SPECS + (
-        ParamSpec("filter.q_ktot_per_step", q_ktot, "[(N/m)^2] k_tot random-walk variance per 10 ms step", 0.0, 1e12),
+        ParamSpec(
+            "filter.q_ktot_per_step",
+            q_ktot,
+            "[(N/m)^2] k_tot random-walk variance per 10 ms step (stiffness_state k_tot)",
+            0.0,
+            1e12,
+        ),
+        ParamSpec(
+            "filter.q_log_ks_per_step",
+            q_log,
+            "[-] random-walk variance of ln k_s per 10 ms step (stiffness_state log_k_s): a relative walk",
+            0.0,
+            1.0,
+        ),
         ParamSpec(
             "filter.q_diag",
             q_diag,
@@ -94,7 +113,14 @@ def _filter_specs(kind: str) -> tuple[ParamSpec, ...]:
             0.0,
             1e15,
         ),
-        ParamSpec("filter.p0_diag", p0_diag, f"[SI^2] initial covariance diagonal of {state}", 1e-15, 1e15),
+        ParamSpec(
+            "filter.p0_diag",
+            p0_diag,
+            f"[SI^2] initial covariance diagonal of {state}; s is the stiffness state: the variance of "
+            "ln(k_s/k_series) for log_k_s (at most 25), of k_tot in (N/m)^2 for k_tot (above 25)",
+            1e-15,
+            1e15,
+        ),
     )
 
 
@@ -118,6 +144,13 @@ _FILTER_SPECS: tuple[ParamSpec, ...] = (
         "taylor4",
         "state transition: 4th-order Taylor series (P-11) or exact expm",
         choices=("taylor4", "expm"),
+    ),
+    ParamSpec(
+        "filter.stiffness_state",
+        "log_k_s",
+        "augmented stiffness state: 'log_k_s' = ln(k_s/k_series), k_tot stays inside (0, k_series) and k_s "
+        "cannot explode (project default); 'k_tot' = the paper's state, clamped (MODELS.md A.10.4)",
+        choices=("log_k_s", "k_tot"),
     ),
     ParamSpec(
         "filter.ktot_noise_form",
@@ -151,9 +184,18 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "estimator.change_ktot_std_frac",
         0.2,
-        "[-] k_tot std added on a detected soil change, as a fraction of the series stiffness (0: off)",
+        "[-] k_tot std added on a detected soil change, as a fraction of the series stiffness "
+        "(stiffness_state k_tot; 0: off)",
         0.0,
         1.0,
+    ),
+    ParamSpec(
+        "estimator.change_log_ks_std",
+        0.7,
+        "[-] std of ln k_s added on a detected soil change (stiffness_state log_k_s; 0.7: a factor 2 at "
+        "one sigma; 0: off)",
+        0.0,
+        5.0,
     ),
     ParamSpec(
         "estimator.profile_smoothing",
@@ -230,12 +272,27 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SoilStiffnessEstimator
         "ktot_noise_form": str(values["filter.ktot_noise_form"]),
         "discretisation": str(values["filter.discretisation"]),
         "ekf_jacobian": str(values["filter.ekf_jacobian"]),
+        "stiffness_state": str(values["filter.stiffness_state"]),
+        "q_log_ks_per_step": _f(values, "filter.q_log_ks_per_step"),
     }
     n = 3 if kind == "lrv" else 5
     for name, diag in (("filter.q_diag", q_diag), ("filter.p0_diag", p0_diag)):
         if len(diag) != n:
             raise ValueError(f"{name} must hold {n} variances for {kind}, got {len(diag)}: {list(diag)}")
     common["q_diag"] = q_diag
+    # The last P0 entry is in the stiffness state's units: catch a k_tot
+    # variance left in place after switching the state (or the reverse).
+    last = p0_diag[-1]
+    if common["stiffness_state"] == "log_k_s" and last > 25.0:
+        raise ValueError(
+            f"filter.p0_diag[-1] = {last:g} is the variance of ln(k_s/k_series) with "
+            "filter.stiffness_state = log_k_s and must be <= 25 (it looks like a k_tot variance in (N/m)^2)"
+        )
+    if common["stiffness_state"] == "k_tot" and last <= 25.0:
+        raise ValueError(
+            f"filter.p0_diag[-1] = {last:g} is a k_tot variance in (N/m)^2 with filter.stiffness_state = k_tot "
+            "and must be > 25 (it looks like a variance of ln k_s)"
+        )
     vehicle: dict[str, Any] = {}
     if kind == "lrv":
         vehicle["lrv"] = LRVParams(
@@ -273,6 +330,7 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SoilStiffnessEstimator
         change_drift=_f(values, "estimator.change_drift"),
         change_threshold=_f(values, "estimator.change_threshold"),
         change_ktot_std_frac=_f(values, "estimator.change_ktot_std_frac"),
+        change_log_ks_std=_f(values, "estimator.change_log_ks_std"),
         profile_smoothing_s=_f(values, "estimator.profile_smoothing"),
         profile_max_gap_s=_f(values, "estimator.profile_max_gap"),
         max_wait_s=_f(values, "estimator.max_wait"),
