@@ -203,9 +203,13 @@ def brush_tire_forces(
     mu_fz = np.asarray(friction, dtype=float) * fz
     gamma = np.hypot(cx_sx, ca_sy)
     limit = 3.0 * mu_fz
-    safe_mu_fz = np.where(mu_fz > 0.0, mu_fz, 1.0)
-    adhesion = gamma - gamma**2 / (3.0 * safe_mu_fz) + gamma**3 / (27.0 * safe_mu_fz**2)
-    force = np.where(gamma < limit, adhesion, mu_fz)
+    # With t = min(γ, 3μF_z)/(3μF_z) ∈ [0, 1] (the sliding fraction of the
+    # patch), γ − γ²/(3μF_z) + γ³/(27μ²F_z²) = μF_z t (3 − 3t + t²), and t = 1
+    # gives exactly μF_z: one expression for both regions, without the
+    # overflow (or 0/0 at denormal loads) of the powers of 1/(μF_z) and
+    # without cancellation at small slip (3 − 3t + t² ≥ 1).
+    t = np.minimum(gamma, limit) / np.where(limit > 0.0, limit, 1.0)
+    force = mu_fz * t * (3.0 - 3.0 * t + t * t)
     scale = np.divide(force, gamma, out=np.zeros(np.broadcast(force, gamma).shape), where=gamma > 0.0)
     return cx_sx * scale, ca_sy * scale
 

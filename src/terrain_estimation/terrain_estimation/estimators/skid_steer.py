@@ -1,0 +1,569 @@
+"""Skid-steer motion-state estimator core: wheel speeds + IMU → AN-STUKF → SkidSteerState ([SS], MODELS.md Part B).
+
+The ROS-free core that the skid-steer estimator node and the offline bag
+runner drive (CONTRACT.md "Skid-steer vehicle"). It owns one
+:class:`~terrain_estimation.filters.an_stukf.AdaptiveStrongTrackingUKF`
+(variant ``"ukf"``, ``"stukf"`` or ``"an_stukf"``) over the 3-state
+:class:`~terrain_estimation.models.skid_steer_observer.SkidSteerObserverModel`
+and turns its state ``[vx, vy, r]`` into every field of
+``terrain_msgs/SkidSteerState`` plus a dead-reckoned pose for ``odom``.
+
+Data flow (all times are the ``t`` arguments, in seconds; no wall clock):
+
+* :meth:`SkidSteerEstimator.add_joint_state` buffers the two motor speeds
+  (motor side, rad/s); the wheel side is motor ÷ ``transmission_ratio``
+  (paper eq. 39; 27.13 for Table 1).
+* :meth:`SkidSteerEstimator.add_imu` takes one IMU sample (specific force
+  ``a_x, a_y`` in m/s², REP 145, gravity is along z and not used on flat
+  ground; yaw rate in rad/s) and runs one filter step from the previous
+  step's stamp to ``t`` with ``z = [a_x, a_y, r]``.
+
+**Wheel speeds (zero-order hold).** A step uses the newest buffered wheel
+speeds stamped at or before ``t`` (or, if all are newer, the oldest one):
+they are held over the step. Wheel speeds older (or newer) than
+``max_wheel_speed_age_s`` relative to the IMU sample are stale: the IMU
+sample is not used for a step (``counters.stale_wheel_speeds``, or
+``no_wheel_speeds`` before the first joint state) and the next step spans
+the gap.
+
+**Load model input.** The quasi-static wheel loads (B.5) take the measured
+``a_x, a_y`` through a first-order low-pass (``accel_cutoff_hz``, default
+2 Hz: passes the manoeuvre, removes vibration, and roughly mimics the lag of
+the real body's pitch/roll load transfer). A step uses the low-pass output
+*before* the step's own sample, so the input does not contain the
+measurement noise of the update it feeds.
+
+**Initialisation and restarts.** The first IMU sample with usable wheel
+speeds initialises the filter at ``initial_state`` or, by default, at the
+encoder-only speed ``R(ω_l + ω_r)/2``, ``vy = 0`` and the measured yaw rate,
+with covariance ``diag(p0_diag)``; it produces an estimate (no update). A
+gap longer than ``max_step_s`` since the last step restarts the same way
+(``counters.restarts``): explicit Euler over a long gap at low rolling speed
+would need hundreds of sub-steps, and the state has moved on anyway.
+
+**Never NaN.** Non-finite arguments raise ValueError naming the field and
+its value (the caller's bug or a broken driver; nothing is stored). If a
+filter step fails (non-finite model output, a step needing more than
+``max_substeps`` sub-steps, a broken factorisation) or leaves a non-finite
+state, the filter re-initialises from the last good estimate's mean with
+the initial covariance and a fresh strong-tracking memory
+(``counters.recoveries``). Every float of an estimate is finite: the ICR is
+0 with ``icr_valid = False`` for ``|r| ≤ min_yaw_rate``, the variance of the
+body sideslip is capped at π².
+
+**Outputs.** :meth:`~SkidSteerEstimator.add_imu` returns the estimate its
+step produced (None if none); every estimate also goes to an outbox read
+by :meth:`~SkidSteerEstimator.drain_estimates`. The body sideslip variance
+is the first-order propagation of the ``(vx, vy)`` covariance through
+``β = atan2(vy, vx)``. The pose (``x, y, yaw`` in the odom frame, origin at
+the first sample) integrates the estimated twist with the trapezoidal rule
+and the mid-step heading.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from terrain_estimation.filters.adaptive import StrongTrackingConfig
+from terrain_estimation.filters.an_stukf import VARIANTS, AdaptiveStrongTrackingUKF, Variant
+from terrain_estimation.filters.base import Array, GaussianState
+from terrain_estimation.filters.ukf import UnscentedKalmanFilter
+from terrain_estimation.models.skid_steer import SkidSteerParams
+from terrain_estimation.models.skid_steer_observer import (
+    DEFAULT_Q0_DIAG,
+    DEFAULT_R0_DIAG,
+    SkidSteerInput,
+    SkidSteerObserverModel,
+    derived_outputs,
+    encoder_kinematics,
+)
+
+__all__ = [
+    "SkidSteerEstimatorConfig",
+    "SkidSteerEstimate",
+    "SkidSteerCounters",
+    "SkidSteerEstimator",
+]
+
+#: Joint-state samples kept for the zero-order hold lookup.
+_JOINT_BUFFER = 64
+
+
+@dataclass(frozen=True)
+class SkidSteerEstimatorConfig:
+    """Configuration of :class:`SkidSteerEstimator` (one frozen object).
+
+    Attributes:
+        vehicle: vehicle parameters (Table 1 plus μ, ε; MODELS.md B.2).
+        filter: ``"ukf"`` (B.8), ``"stukf"`` (+ strong tracking, B.9) or
+            ``"an_stukf"`` (+ adaptive noise, B.10; the paper's filter).
+        ukf_alpha: sigma-point spread α. Default 1: the paper asks for "α
+            small", but with n = 3 and κ = 0 a small α makes ``W_m0 = 1 −
+            3/(α²·3)`` large and negative (−9999 at α = 0.01), which loses
+            positive-definiteness of the predicted covariance; α = 1 gives
+            ``W_m0 = 0``, ``W_c0 = 2`` and well-conditioned weights (B.8).
+        ukf_beta: β (2: optimal for a Gaussian prior).
+        ukf_kappa: κ (0 = 3 − n for n = 3).
+        gate_threshold: NIS gate (χ²₃ quantile, e.g. 16.3 for 0.999); None
+            disables. A gated update keeps the prediction.
+        strong_tracking: ρ, β_w, γ_th, λ_max of the fading factor (B.9;
+            defaults ρ = 0.95, β_w = 1, γ_th = 3, λ_max = 10).
+        k_q: ``K_q`` (rad⁻¹) of ``Q_k = Q0(1 + K_q ᾱ)`` (B.10, default 5).
+        k_r: ``K_r`` (rad⁻¹) of ``R_k = R0/(1 + K_r ᾱ)`` (B.10, default 2).
+        q0_diag: base process noise per ``q_step_dt`` ((m/s)², (m/s)²,
+            (rad/s)²); reasons in :mod:`~terrain_estimation.models.skid_steer_observer`.
+        q_step_dt: step length ``q0_diag`` refers to (s).
+        r0_diag: base measurement noise of ``[a_x, a_y, r]`` ((m/s²)²,
+            (m/s²)², (rad/s)²). Set the acceleration entries to the real
+            accelerometer noise + vibration (see the observer module).
+        substeps: minimum Euler sub-steps per filter step.
+        max_euler_gain: Euler gain bound per sub-step that sets the number of
+            sub-steps (None: exactly ``substeps``, the literal B.6 scheme).
+        max_substeps: a step needing more sub-steps fails (→ recovery).
+        accel_cutoff_hz: cut-off of the first-order low-pass of the measured
+            ``a_x, a_y`` that feed the load model (Hz).
+        min_yaw_rate: ICR published only for ``|r|`` above it (rad/s, B.3).
+        max_wheel_speed_age_s: wheel speeds further than this from the IMU
+            stamp are stale (s).
+        max_step_s: a longer gap between steps restarts the filter (s).
+        friction: μ; None uses ``vehicle.friction``.
+        initial_state: ``(vx, vy, r)`` at (re)initialisation; None = encoder
+            speed, 0, measured yaw rate.
+        p0_diag: initial covariance diagonal ((m/s)², (m/s)², (rad/s)²).
+            Default std 0.3 m/s, 0.2 m/s, 0.02 rad/s: the encoder speed is
+            off by the slip (≲ 20 % at manoeuvring speeds), vy is a small
+            fraction of vx, the gyro gives r.
+    """
+
+    vehicle: SkidSteerParams = field(default_factory=SkidSteerParams)
+    filter: Variant = "an_stukf"
+    ukf_alpha: float = 1.0
+    ukf_beta: float = 2.0
+    ukf_kappa: float = 0.0
+    gate_threshold: float | None = None
+    strong_tracking: StrongTrackingConfig = field(default_factory=StrongTrackingConfig)
+    k_q: float = 5.0
+    k_r: float = 2.0
+    q0_diag: tuple[float, float, float] = DEFAULT_Q0_DIAG
+    q_step_dt: float = 0.01
+    r0_diag: tuple[float, float, float] = DEFAULT_R0_DIAG
+    substeps: int = 1
+    max_euler_gain: float | None = 0.5
+    max_substeps: int = 1000
+    accel_cutoff_hz: float = 2.0
+    min_yaw_rate: float = 0.02
+    max_wheel_speed_age_s: float = 0.05
+    max_step_s: float = 0.1
+    friction: float | None = None
+    initial_state: tuple[float, float, float] | None = None
+    p0_diag: tuple[float, float, float] = (0.3**2, 0.2**2, 0.02**2)
+
+    def __post_init__(self) -> None:
+        if self.filter not in VARIANTS:
+            raise ValueError(f"filter must be one of {VARIANTS}, got {self.filter!r}")
+        positive = ("accel_cutoff_hz", "max_wheel_speed_age_s", "max_step_s", "q_step_dt")
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"{name} must be finite and > 0, got {value}")
+        for name in ("min_yaw_rate", "k_q", "k_r"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+        if self.friction is not None and not (math.isfinite(self.friction) and self.friction > 0.0):
+            raise ValueError(f"friction must be None or finite and > 0, got {self.friction}")
+        if self.initial_state is not None:
+            if len(self.initial_state) != 3 or not all(math.isfinite(v) for v in self.initial_state):
+                raise ValueError(f"initial_state must be None or 3 finite values, got {self.initial_state}")
+        if len(self.p0_diag) != 3 or not all(math.isfinite(v) and v > 0.0 for v in self.p0_diag):
+            raise ValueError(f"p0_diag must hold 3 finite variances > 0, got {self.p0_diag}")
+        if self.gate_threshold is not None and not (math.isfinite(self.gate_threshold) and self.gate_threshold > 0.0):
+            raise ValueError(f"gate_threshold must be None or finite and > 0, got {self.gate_threshold}")
+        # The filter and model validate their own parameters.
+        self.make_model()
+        self.make_filter()
+
+    def make_model(self) -> SkidSteerObserverModel:
+        """The observer model these settings describe."""
+        return SkidSteerObserverModel(
+            self.vehicle,
+            q0_diag=self.q0_diag,
+            r0_diag=self.r0_diag,
+            q_step_dt=self.q_step_dt,
+            substeps=self.substeps,
+            max_euler_gain=self.max_euler_gain,
+            max_substeps=self.max_substeps,
+        )
+
+    def make_filter(self) -> AdaptiveStrongTrackingUKF:
+        """The filter these settings describe."""
+        ukf = UnscentedKalmanFilter(
+            alpha=self.ukf_alpha, beta=self.ukf_beta, kappa=self.ukf_kappa, gate_threshold=self.gate_threshold
+        )
+        return AdaptiveStrongTrackingUKF(
+            variant=self.filter, ukf=ukf, strong_tracking=self.strong_tracking, k_q=self.k_q, k_r=self.k_r
+        )
+
+
+@dataclass(frozen=True)
+class SkidSteerEstimate:
+    """One filter step's result: every ``SkidSteerState`` field, the odometry pose and diagnostics.
+
+    Every float is finite.
+
+    Attributes:
+        t: time of the step (s), the IMU sample's stamp.
+        vx, vy: body-frame velocity of the CM (m/s).
+        yaw_rate: r (rad/s).
+        vx_variance, vy_variance, yaw_rate_variance: filter variances.
+        body_sideslip: β = atan2(vy, vx) (rad).
+        body_sideslip_variance: first-order variance of β (rad², ≤ π²).
+        slip_left, slip_right: per-side longitudinal slip κ (> 0 in traction).
+        tire_sideslip: α of FL, ML, RL, FR, MR, RR (rad).
+        icr_x, icr_y: instantaneous centre of rotation in body axes (m); 0
+            when not valid.
+        icr_valid: ``|r| > min_yaw_rate``.
+        fading_factor: strong-tracking λ (1 for the plain UKF or a consistent step).
+        noise_scale: ``1 + K_q ᾱ`` (1 unless an_stukf).
+        mean_abs_tire_sideslip: ᾱ that set the noise scale (rad; 0 unless an_stukf).
+        x, y, yaw: dead-reckoned pose in the odom frame (m, m, rad in (−π, π]).
+        twist_covariance: covariance of ``[vx, vy, r]``, 9 values row-major.
+        nis: normalised innovation squared of the update (0 without update).
+        accepted: a measurement update was applied at this step.
+        initialised: this estimate comes from a (re)initialisation, not a filter step.
+        wheel_speed_left, wheel_speed_right: wheel-side speeds used (rad/s).
+        vx_encoder, yaw_rate_encoder: slip-free encoder-only estimates (m/s, rad/s).
+    """
+
+    t: float
+    vx: float
+    vx_variance: float
+    vy: float
+    vy_variance: float
+    yaw_rate: float
+    yaw_rate_variance: float
+    body_sideslip: float
+    body_sideslip_variance: float
+    slip_left: float
+    slip_right: float
+    tire_sideslip: tuple[float, ...]
+    icr_x: float
+    icr_y: float
+    icr_valid: bool
+    fading_factor: float
+    noise_scale: float
+    mean_abs_tire_sideslip: float
+    x: float
+    y: float
+    yaw: float
+    twist_covariance: tuple[float, ...]
+    nis: float
+    accepted: bool
+    initialised: bool
+    wheel_speed_left: float
+    wheel_speed_right: float
+    vx_encoder: float
+    yaw_rate_encoder: float
+
+
+@dataclass(frozen=True)
+class SkidSteerCounters:
+    """Health counters since construction or :meth:`SkidSteerEstimator.reset`."""
+
+    imu_samples: int = 0
+    joint_states: int = 0
+    steps: int = 0
+    updates_accepted: int = 0
+    gated: int = 0
+    strong_tracking_active: int = 0
+    initialisations: int = 0
+    restarts: int = 0
+    recoveries: int = 0
+    stale_wheel_speeds: int = 0
+    no_wheel_speeds: int = 0
+    imu_out_of_order: int = 0
+    joint_out_of_order: int = 0
+
+
+def _finite(where: str, name: str, value: Any) -> float:
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"{where}: {name} must be finite, got {value!r}")
+    return v
+
+
+def _wrap(angle: float) -> float:
+    """Angle in (−π, π]."""
+    a = math.remainder(angle, 2.0 * math.pi)
+    return math.pi if a == -math.pi else a
+
+
+class SkidSteerEstimator:
+    """Motion states of the six-wheel skid steer from wheel speeds and the IMU (module docstring).
+
+    Args:
+        config: settings; defaults are the AN-STUKF with the B.10 noise.
+    """
+
+    def __init__(self, config: SkidSteerEstimatorConfig | None = None) -> None:
+        self.config = config if config is not None else SkidSteerEstimatorConfig()
+        self.model = self.config.make_model()
+        self.filter = self.config.make_filter()
+        self._p0 = np.diag(np.array(self.config.p0_diag, dtype=float))
+        self._friction = self.config.friction
+        self.reset()
+
+    # -- public API ---------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget the state, the buffers, the pose, the outbox and the counters."""
+        self._state: GaussianState | None = None
+        self._memory: Array | None = None
+        self._t_prev: float | None = None
+        self._t_last_imu: float | None = None
+        self._a_lp: tuple[float, float] | None = None
+        self._joints: deque[tuple[float, float, float]] = deque(maxlen=_JOINT_BUFFER)
+        self._pose = (0.0, 0.0, 0.0)
+        self._last: SkidSteerEstimate | None = None
+        self._outbox: list[SkidSteerEstimate] = []
+        self._c: dict[str, int] = dict.fromkeys(SkidSteerCounters.__dataclass_fields__, 0)
+
+    @property
+    def counters(self) -> SkidSteerCounters:
+        """Snapshot of the health counters."""
+        return SkidSteerCounters(**self._c)
+
+    @property
+    def last_estimate(self) -> SkidSteerEstimate | None:
+        """The newest estimate (None before the first)."""
+        return self._last
+
+    @property
+    def initialised(self) -> bool:
+        """The filter holds a state."""
+        return self._state is not None
+
+    def drain_estimates(self) -> list[SkidSteerEstimate]:
+        """Estimates produced since the last call, oldest first (and clear them)."""
+        out, self._outbox = self._outbox, []
+        return out
+
+    def set_friction(self, friction: float | None) -> None:
+        """Friction μ for the following steps (e.g. from a μ identifier); None = the vehicle's."""
+        if friction is not None:
+            mu = _finite("set_friction", "friction", friction)
+            if mu <= 0.0:
+                raise ValueError(f"set_friction: friction must be > 0, got {friction!r}")
+        self._friction = friction
+
+    def add_joint_state(self, t: float, motor_velocity_left: float, motor_velocity_right: float) -> None:
+        """Buffer one sample of the motor speeds (motor side, rad/s, > 0 drives forward).
+
+        Raises:
+            ValueError: a non-finite argument (named in the message).
+        """
+        where = "add_joint_state"
+        tt = _finite(where, "t", t)
+        wl = _finite(where, "motor_velocity_left", motor_velocity_left)
+        wr = _finite(where, "motor_velocity_right", motor_velocity_right)
+        self._c["joint_states"] += 1
+        if self._joints and tt <= self._joints[-1][0]:
+            self._c["joint_out_of_order"] += 1
+            return
+        ratio = self.config.vehicle.transmission_ratio
+        self._joints.append((tt, wl / ratio, wr / ratio))
+
+    def add_imu(self, t: float, ax: float, ay: float, yaw_rate: float) -> SkidSteerEstimate | None:
+        """One IMU sample (specific force a_x, a_y in m/s²; yaw rate in rad/s): one filter step.
+
+        Returns:
+            The estimate of this step, or None when no step ran (out-of-order
+            stamp, stale or missing wheel speeds).
+
+        Raises:
+            ValueError: a non-finite argument (named in the message).
+        """
+        where = "add_imu"
+        tt = _finite(where, "t", t)
+        z = np.array([_finite(where, "ax", ax), _finite(where, "ay", ay), _finite(where, "yaw_rate", yaw_rate)])
+        self._c["imu_samples"] += 1
+        if self._t_last_imu is not None and tt <= self._t_last_imu:
+            self._c["imu_out_of_order"] += 1
+            return None
+        a_prev = self._lowpass(tt, z[0], z[1])
+        wheels = self._wheel_speeds_at(tt)
+        if wheels is None:
+            return None
+        wl, wr = wheels
+        if self._state is None or self._t_prev is None:
+            est = self._initialise(tt, wl, wr, z, restart=False)
+        elif tt - self._t_prev > self.config.max_step_s:
+            est = self._initialise(tt, wl, wr, z, restart=True)
+        else:
+            est = self._step(tt, wl, wr, z, a_prev)
+        self._last = est
+        self._outbox.append(est)
+        return est
+
+    # -- internals ------------------------------------------------------------------
+    def _lowpass(self, t: float, ax: float, ay: float) -> tuple[float, float]:
+        """Advance the a_x, a_y low-pass with a sample; return its output *before* the sample."""
+        if self._a_lp is None or self._t_last_imu is None:
+            self._a_lp = (ax, ay)
+            self._t_last_imu = t
+            return self._a_lp
+        prev = self._a_lp
+        g = 1.0 - math.exp(-2.0 * math.pi * self.config.accel_cutoff_hz * (t - self._t_last_imu))
+        self._a_lp = (prev[0] + g * (ax - prev[0]), prev[1] + g * (ay - prev[1]))
+        self._t_last_imu = t
+        return prev
+
+    def _wheel_speeds_at(self, t: float) -> tuple[float, float] | None:
+        """Zero-order hold: newest wheel speeds stamped ≤ t (else the oldest), None if stale/missing."""
+        if not self._joints:
+            self._c["no_wheel_speeds"] += 1
+            return None
+        chosen = self._joints[0]
+        for sample in reversed(self._joints):
+            if sample[0] <= t:
+                chosen = sample
+                break
+        if abs(t - chosen[0]) > self.config.max_wheel_speed_age_s:
+            self._c["stale_wheel_speeds"] += 1
+            return None
+        return chosen[1], chosen[2]
+
+    def _input(self, wl: float, wr: float, a: tuple[float, float]) -> SkidSteerInput:
+        return SkidSteerInput(wl, wr, a[0], a[1], self._friction)
+
+    def _initialise(self, t: float, wl: float, wr: float, z: Array, *, restart: bool) -> SkidSteerEstimate:
+        cfg = self.config
+        if cfg.initial_state is not None:
+            x0 = np.array(cfg.initial_state, dtype=float)
+        else:
+            vx_enc, _ = encoder_kinematics(wl, wr, cfg.vehicle)
+            x0 = np.array([vx_enc, 0.0, z[2]])
+        self._state = self.filter.initial_state(x0, self._p0)
+        self._memory = None
+        self._c["restarts" if restart else "initialisations"] += 1
+        dt = 0.0 if self._t_prev is None else t - self._t_prev
+        self._t_prev = t
+        return self._estimate(t, wl, wr, dt, fading=1.0, scale=1.0, a_bar=0.0, nis=0.0, accepted=False, init=True)
+
+    def _step(self, t: float, wl: float, wr: float, z: Array, a_prev: tuple[float, float]) -> SkidSteerEstimate:
+        assert self._state is not None and self._t_prev is not None
+        dt = t - self._t_prev
+        self._t_prev = t
+        self._c["steps"] += 1
+        prev = self._state
+        u = self._input(wl, wr, a_prev)
+        try:
+            post, res = self.filter.step(prev, z, self.model, u, dt, self._memory)
+            ok = bool(np.isfinite(post.x).all() and np.isfinite(post.P).all())
+        except (ValueError, np.linalg.LinAlgError):
+            # Non-finite model output, too many Euler sub-steps, a broken factor.
+            ok = False
+        if not ok:
+            # Re-initialise from the last good mean (the previous posterior is finite by induction).
+            self._c["recoveries"] += 1
+            self._state = self.filter.initial_state(np.asarray(prev.x, dtype=float), self._p0)
+            self._memory = None
+            return self._estimate(t, wl, wr, dt, fading=1.0, scale=1.0, a_bar=0.0, nis=0.0, accepted=False, init=True)
+        self._state = post
+        self._memory = res.memory
+        if res.accepted:
+            self._c["updates_accepted"] += 1
+        else:
+            self._c["gated"] += 1
+        if res.fading_factor > 1.0:
+            self._c["strong_tracking_active"] += 1
+        nis = res.nis if math.isfinite(res.nis) else 0.0
+        return self._estimate(
+            t,
+            wl,
+            wr,
+            dt,
+            fading=res.fading_factor,
+            scale=res.noise_scale,
+            a_bar=res.mean_abs_sideslip,
+            nis=nis,
+            accepted=res.accepted,
+            init=False,
+        )
+
+    def _advance_pose(self, dt: float, x_new: Array) -> None:
+        """Trapezoidal twist, mid-step heading (exact for constant twist to O(dt³))."""
+        px, py, yaw = self._pose
+        if dt > 0.0 and self._last is not None:
+            vx = 0.5 * (self._last.vx + float(x_new[0]))
+            vy = 0.5 * (self._last.vy + float(x_new[1]))
+            r = 0.5 * (self._last.yaw_rate + float(x_new[2]))
+            mid = yaw + 0.5 * dt * r
+            c, s = math.cos(mid), math.sin(mid)
+            px += dt * (c * vx - s * vy)
+            py += dt * (s * vx + c * vy)
+            yaw = _wrap(yaw + dt * r)
+        self._pose = (px, py, yaw)
+
+    def _estimate(
+        self,
+        t: float,
+        wl: float,
+        wr: float,
+        dt: float,
+        *,
+        fading: float,
+        scale: float,
+        a_bar: float,
+        nis: float,
+        accepted: bool,
+        init: bool,
+    ) -> SkidSteerEstimate:
+        assert self._state is not None
+        cfg = self.config
+        x = np.asarray(self._state.x, dtype=float)
+        P = np.asarray(self._state.P, dtype=float)
+        self._advance_pose(dt, x)
+        out = derived_outputs(x, wl, wr, cfg.vehicle, cfg.min_yaw_rate)
+        # β = atan2(vy, vx): ∂β/∂(vx, vy) = (−vy, vx)/(vx² + vy²); the speed is
+        # floored at the rolling-speed floor so the variance stays finite at
+        # rest, and capped at π² (β's whole range is 2π).
+        v2 = max(float(x[0] ** 2 + x[1] ** 2), cfg.vehicle.rolling_speed_floor**2)
+        jac = np.array([-x[1], x[0]]) / v2
+        beta_var = min(float(jac @ P[:2, :2] @ jac), math.pi**2)
+        px, py, yaw = self._pose
+        return SkidSteerEstimate(
+            t=t,
+            vx=float(x[0]),
+            vx_variance=float(P[0, 0]),
+            vy=float(x[1]),
+            vy_variance=float(P[1, 1]),
+            yaw_rate=float(x[2]),
+            yaw_rate_variance=float(P[2, 2]),
+            body_sideslip=out.body_sideslip,
+            body_sideslip_variance=max(beta_var, 0.0),
+            slip_left=out.slip_left,
+            slip_right=out.slip_right,
+            tire_sideslip=out.tire_sideslip,
+            icr_x=out.icr_x,
+            icr_y=out.icr_y,
+            icr_valid=out.icr_valid,
+            fading_factor=float(fading),
+            noise_scale=float(scale),
+            mean_abs_tire_sideslip=float(a_bar),
+            x=px,
+            y=py,
+            yaw=yaw,
+            twist_covariance=tuple(float(v) for v in P.ravel()),
+            nis=float(nis),
+            accepted=bool(accepted),
+            initialised=init,
+            wheel_speed_left=wl,
+            wheel_speed_right=wr,
+            vx_encoder=out.vx_encoder,
+            yaw_rate_encoder=out.yaw_rate_encoder,
+        )

@@ -1,0 +1,225 @@
+"""UKF, strong-tracking UKF and AN-STUKF as one step ([SS] section 4; MODELS.md B.8–B.10).
+
+:class:`AdaptiveStrongTrackingUKF` composes the building blocks of
+:mod:`.ukf` and :mod:`.adaptive` (no filter equation is re-implemented here)::
+
+    variant "ukf":      state = ukf.predict(...);  state, info = ukf.update(...)          (B.8)
+    variant "stukf":    pred = ukf.propagate(...)                                          (x̄, P̄0, Q_k)
+                        moments at (x̄, P̄0 + Q_k) → e, P_zz, P_xz
+                        λ, V = suboptimal_fading_factor(e, ..., V_prev)                   (B.9)
+                        state, info = ukf.update(pred.state(λ), z, ...)                   (P̄ = λ P̄0 + Q_k)
+    variant "an_stukf": as "stukf", but first                                              (B.10)
+                        ᾱ = mean |α_ij(x̄)|  (tire sideslip at the PREDICTED mean)
+                        Q_k = Q0 (1 + K_q ᾱ),  R_k = R0 / (1 + K_r ᾱ)   (adapt_noise_sqrt)
+                        and Q_k, R_k are used for the fading factor and the update.
+
+The "stukf" path is exactly :func:`~.adaptive.strong_tracking_predict`
+followed by the update; it is spelled out from the same parts (``propagate``,
+``measurement_moments``, ``suboptimal_fading_factor``,
+``SigmaPointPrediction.state``) so that the AN-STUKF can evaluate the
+sideslip at the predicted mean ``x̄`` and swap in the adapted ``Q_k`` without
+propagating the points a second time (``x̄`` does not depend on Q; the
+propagation is the expensive part, a vehicle model with Euler sub-steps).
+
+The adaptation needs the model to give the tire sideslip angles at a state:
+:class:`TireSideslipModel` (e.g.
+:class:`~terrain_estimation.models.skid_steer_observer.SkidSteerObserverModel`).
+"""
+
+# ruff: noqa: N803, N806 - matrix symbols (P, S, Q, R, W, ...) of the papers
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal, Protocol, runtime_checkable
+
+import numpy as np
+
+from .adaptive import StrongTrackingConfig, adapt_noise_sqrt, suboptimal_fading_factor
+from .base import Array, GaussianState, StateSpaceModel, check_vector
+from .kalman import check_factor, check_measurement
+from .ukf import UnscentedKalmanFilter
+
+__all__ = [
+    "Variant",
+    "VARIANTS",
+    "TireSideslipModel",
+    "AnStukfResult",
+    "AdaptiveStrongTrackingUKF",
+]
+
+Variant = Literal["ukf", "stukf", "an_stukf"]
+#: The filter variants of [SS]: plain UKF (B.8), + strong tracking (B.9), + adaptive noise (B.10).
+VARIANTS: tuple[str, ...] = ("ukf", "stukf", "an_stukf")
+
+
+@runtime_checkable
+class TireSideslipModel(StateSpaceModel, Protocol):
+    """A model that also gives the tire sideslip angles that drive the noise adaptation (B.10)."""
+
+    def tire_sideslip(self, x: Array, u: Any) -> Array:
+        """Tire sideslip angles α (rad) at the state ``x`` ``(n,)``, any shape."""
+        ...
+
+
+@dataclass(frozen=True)
+class AnStukfResult:
+    """What one :meth:`AdaptiveStrongTrackingUKF.step` did.
+
+    Attributes:
+        fading_factor: strong-tracking ``λ_k ≥ 1`` (1 for the plain UKF).
+        noise_scale: ``1 + K_q ᾱ_k`` (1 unless the variant is "an_stukf").
+        mean_abs_sideslip: ``ᾱ_k`` (rad) at the predicted mean (0 unless "an_stukf").
+        nis: normalised innovation squared of the update.
+        innovation: ``z − ẑ`` of the update, at the (possibly inflated)
+            prediction ``(p,)``.
+        innovation_cov: its covariance ``P_zz`` ``(p, p)``.
+        accepted: the update was applied (False only when the UKF's gate rejects).
+        memory: strong-tracking innovation-covariance estimate ``V_k``
+            ``(p, p)``; pass it back as ``memory`` at the next step (None for
+            the plain UKF, which does not keep one).
+    """
+
+    fading_factor: float
+    noise_scale: float
+    mean_abs_sideslip: float
+    nis: float
+    innovation: Array
+    innovation_cov: Array
+    accepted: bool
+    memory: Array | None
+
+
+@dataclass(frozen=True, kw_only=True)
+class AdaptiveStrongTrackingUKF:
+    """UKF / STUKF / AN-STUKF step over a :class:`~.base.GaussianState` (MODELS.md B.8–B.10).
+
+    Args:
+        variant: ``"ukf"`` (B.8), ``"stukf"`` (B.8 + B.9) or ``"an_stukf"``
+            (B.8 + B.9 + B.10).
+        ukf: the unscented filter (sigma-point parameters α, β, κ; NIS gate).
+        strong_tracking: ``ρ, β_w, γ_th, λ_max`` of the fading factor (B.9).
+        k_q: ``K_q ≥ 0`` (rad⁻¹), growth of Q with the mean tire sideslip (B.10).
+        k_r: ``K_r ≥ 0`` (rad⁻¹), shrinking of R with it.
+        q0_sqrt: factor of the base process noise ``Q0`` ``(n, q)``; None uses
+            ``model.process_noise_sqrt(x, u, dt)`` (which may scale with dt).
+        r0_sqrt: factor of the base measurement noise ``R0`` ``(p, r)``; None
+            uses ``model.measurement_noise_sqrt()``.
+    """
+
+    variant: Variant = "an_stukf"
+    ukf: UnscentedKalmanFilter = field(default_factory=UnscentedKalmanFilter)
+    strong_tracking: StrongTrackingConfig = field(default_factory=StrongTrackingConfig)
+    k_q: float = 5.0
+    k_r: float = 2.0
+    q0_sqrt: Array | None = None
+    r0_sqrt: Array | None = None
+
+    def __post_init__(self) -> None:
+        if self.variant not in VARIANTS:
+            raise ValueError(f"variant must be one of {VARIANTS}, got {self.variant!r}")
+        if not isinstance(self.ukf, UnscentedKalmanFilter):
+            raise ValueError(f"ukf must be an UnscentedKalmanFilter, got {type(self.ukf).__name__}")
+        if not isinstance(self.strong_tracking, StrongTrackingConfig):
+            raise ValueError("strong_tracking must be a StrongTrackingConfig")
+        for name in ("k_q", "k_r"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+        for name in ("q0_sqrt", "r0_sqrt"):
+            value = getattr(self, name)
+            if value is not None:
+                arr = np.array(value, dtype=float)
+                if arr.ndim != 2 or arr.size == 0 or not np.isfinite(arr).all():
+                    raise ValueError(f"{name} must be None or a finite non-empty 2-D factor, got shape {arr.shape}")
+                arr.setflags(write=False)
+                object.__setattr__(self, name, arr)
+
+    def initial_state(self, x0: Any, P0: Any) -> GaussianState:
+        """``GaussianState`` from a finite mean ``(n,)`` and a symmetric ``P0`` ``(n, n)``."""
+        return self.ukf.initial_state(x0, P0)
+
+    def step(
+        self,
+        state: GaussianState,
+        z: Any,
+        model: StateSpaceModel,
+        u: Any,
+        dt: float,
+        memory: Array | None = None,
+    ) -> tuple[GaussianState, AnStukfResult]:
+        """One predict + update of the selected variant.
+
+        Args:
+            state: posterior at step k−1, ``x`` ``(n,)``, ``P`` ``(n, n)``.
+            z: measurement at step k ``(p,)``, finite.
+            model: the model (``f``, ``h`` vectorised over points); for
+                ``"an_stukf"`` a :class:`TireSideslipModel`.
+            u: input over the step, passed to ``f``, ``h`` and ``tire_sideslip``.
+            dt: step length (s).
+            memory: ``V_{k−1}`` from the previous step's result (None at the
+                first step or after a restart).
+
+        Returns:
+            ``(posterior, result)``.
+
+        Raises:
+            ValueError: on wrong shapes, non-finite ``z`` or model outputs, or a
+                model without ``tire_sideslip`` for "an_stukf".
+        """
+        n, p = model.state_dim, model.measurement_dim
+        x = check_vector("state.x", state.x, n)
+        zv = check_measurement(z, p)
+        Lq0 = None if self.q0_sqrt is None else check_factor("q0_sqrt", self.q0_sqrt, n)
+        Rs0 = None if self.r0_sqrt is None else check_factor("r0_sqrt", self.r0_sqrt, p)
+        if self.variant == "ukf":
+            prior = self.ukf.predict(state, model, u, dt, process_noise_sqrt=Lq0)
+            post, info = self.ukf.update(prior, zv, model, u, measurement_noise_sqrt=Rs0)
+            return post, AnStukfResult(
+                fading_factor=1.0,
+                noise_scale=1.0,
+                mean_abs_sideslip=0.0,
+                nis=float(info.nis),
+                innovation=info.innovation,
+                innovation_cov=info.innovation_cov,
+                accepted=info.accepted,
+                memory=memory,
+            )
+
+        if Lq0 is None:
+            Lq0 = check_factor("model.process_noise_sqrt", model.process_noise_sqrt(x, u, dt), n)
+        if Rs0 is None:
+            Rs0 = check_factor("model.measurement_noise_sqrt", model.measurement_noise_sqrt(), p)
+        pred = self.ukf.propagate(state, model, u, dt, process_noise_sqrt=Lq0)  # x̄, P̄0, Q0 (B.8)
+        Rs = Rs0
+        noise_scale, a_bar = 1.0, 0.0
+        if self.variant == "an_stukf":
+            sideslip = getattr(model, "tire_sideslip", None)  # TireSideslipModel (cheaper than isinstance)
+            if not callable(sideslip):
+                raise ValueError("variant 'an_stukf' needs a model with tire_sideslip(x, u) (TireSideslipModel)")
+            # B.10: the tire sideslip at the predicted mean x̄ drives Q_k and R_k.
+            noise = adapt_noise_sqrt(Lq0, Rs0, sideslip(pred.x, u), k_q=self.k_q, k_r=self.k_r)
+            Lq = noise.process_noise_sqrt
+            pred = dataclasses.replace(pred, Q=Lq @ Lq.T)  # x̄ and P̄0 do not depend on Q
+            Rs = noise.measurement_noise_sqrt
+            noise_scale, a_bar = noise.noise_scale, noise.mean_abs_slip
+        # B.9, as strong_tracking_predict: moments at the plain prediction, λ, P̄ = λ P̄0 + Q_k.
+        prior = pred.state()
+        mm = self.ukf.measurement_moments(prior, model, u, measurement_noise_sqrt=Rs)
+        lam, V = suboptimal_fading_factor(
+            zv - mm.z_hat, mm.P_zz, mm.P_xz, prior.P, mm.R, pred.Q, memory, self.strong_tracking
+        )
+        inflated = prior if lam == 1.0 else pred.state(lam)
+        post, info = self.ukf.update(inflated, zv, model, u, measurement_noise_sqrt=Rs)
+        return post, AnStukfResult(
+            fading_factor=float(lam),
+            noise_scale=float(noise_scale),
+            mean_abs_sideslip=float(a_bar),
+            nis=float(info.nis),
+            innovation=info.innovation,
+            innovation_cov=info.innovation_cov,
+            accepted=info.accepted,
+            memory=V,
+        )

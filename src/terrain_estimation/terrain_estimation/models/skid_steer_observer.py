@@ -1,0 +1,454 @@
+"""Observer model of the six-wheel skid-steered vehicle: state [vx, vy, r] ([SS], MODELS.md B.6–B.7).
+
+:class:`SkidSteerObserverModel` implements
+:class:`~terrain_estimation.filters.base.StateSpaceModel` for the (AN-ST)UKF of
+:mod:`terrain_estimation.filters.an_stukf`:
+
+* state ``x = [vx, vy, r]`` (m/s, m/s, rad/s), body frame REP 103 at the CM;
+* input :class:`SkidSteerInput`: the two side wheel speeds ``ω_l, ω_r``
+  (wheel side, rad/s = motor ÷ i_g, paper eq. 39), the low-pass-filtered
+  measured ``a_x, a_y`` that set the quasi-static wheel loads (B.5: measured,
+  not predicted, which avoids an algebraic loop) and the friction ``μ``;
+* measurement ``z = [a_x, a_y, r]`` from the IMU at the CM, predicted as
+  ``h(x, u) = [ΣF_x/m, ΣF_y/m, r]`` at the state (B.7: on flat ground the
+  IMU's ``a_x = v̇x − vy r``, ``a_y = v̇y + vx r``, which the Newton–Euler
+  equations B.6 equate to the summed tire forces over m).
+
+All the physics (contact kinematics, brush tire, loads, body forces) comes
+from the shared module :mod:`terrain_estimation.models.skid_steer`; this
+module only adds the time discretisation, the noise and the derived outputs.
+
+**Discretisation (B.6) and sub-steps.** ``f`` is forward Euler of B.6
+repeated over ``N`` equal sub-steps of the step ``dt``. With ``N = 1`` it is
+the paper's scheme, but the brush tire makes the dynamics stiff at low
+rolling speed: linearised, the tire forces relax the velocities at rates up
+to ``κ_v / V_r`` with ``V_r = max(R|ω|, ε)`` and ``κ_v ≈ 84.5 m/s²`` for
+Table 1 (the largest eigenvalue of ``M^{-1/2} Σ_w E_wᵀ C E_w M^{-1/2}``,
+``M = diag(m, m, I_z)``, at unit rolling speed). That is 61 s⁻¹ at 5 km/h
+(Euler gain ``dt·rate`` = 0.6 at 10 ms), 10 s⁻¹ at 30 km/h, but 1700 s⁻¹ at
+the floor ε = 0.05 m/s, where a 10 ms Euler step (gain 17) diverges. So
+``N`` is chosen per step from the input alone (the rate bound depends only
+on ``V_r``; saturation can only lower the slope of the brush force, whose
+derivative ``(1 − γ/(3μF_z))²`` and secant ``F/γ`` both lie in [0, 1]) so
+that the Euler gain per sub-step stays below ``max_euler_gain`` (default
+0.5: monotone decay with a relaxation error below 20 % per sub-step; any
+gain < 2 is stable). Typical cost: ``N = 1`` above ≈ 3 m/s, 2 at 5 km/h, 34
+at standstill. The equilibria (steady states) of the Euler map are those of
+the continuous model whatever ``N``, so the sub-steps change transients only.
+A step that would need more than ``max_substeps`` sub-steps raises
+ValueError (the estimator treats it like a non-finite state and restarts).
+``max_euler_gain=None`` gives a fixed ``N = substeps`` (``1``: the literal
+paper scheme).
+
+**Noise defaults (B.10) and why.** ``Q0 = diag(0.02², 0.02², 0.005²)`` per
+10 ms step and ``R0 = diag(0.1², 0.1², 0.005²)`` as in MODELS.md B.10,
+checked against sensors and model errors:
+
+* ``R0`` gyro, σ = 0.005 rad/s (0.29 °/s): a MEMS gyro's white noise at
+  100 Hz is 0.001–0.002 rad/s (0.005–0.01 °/s/√Hz × √50 Hz); the rest covers
+  vibration-induced rate noise. ``h_3 = r`` has no model in between, so
+  this is the one entry that is pure sensor noise; it makes the gyro the
+  dominant source of ``r`` (the process noise lets r move 0.005 rad/s per
+  step).
+* ``R0`` accelerations, σ = 0.1 m/s²: a MEMS accelerometer's white noise at
+  100 Hz is only 0.005–0.02 m/s² (60–200 µg/√Hz), so 0.1 m/s² mostly stands
+  for what the IMU sees that ``h = ΣF/m`` does not model: body vibration on
+  unpaved ground, gravity leaking through unmodelled roll and pitch
+  (``g·sin 1° = 0.17 m/s²``) and the brush model's force error. It is the
+  lower end of that range: a real skid steer on rough ground shows far more
+  (the BorealTC Husky logs in ``real_data/`` carry 0.7–2.6 m/s² rms above
+  2 Hz on a small unsuspended robot). **Set it to the actual accelerometer
+  noise + vibration of the data.** Measured with these defaults on the
+  model's own data (2 m/s, 0.13 rad/s turn): ``P_zz`` of the accelerations is
+  0.12–0.21 (m/s²)², mostly ``H Q0 Hᵀ`` (R0 is 0.01), so the update leans on
+  the accelerometers through the tire model and accelerometer noise above
+  R0 passes into vx, vy: at σ_a = 0.3 m/s² the rms errors are 0.017 / 0.012
+  m/s against reported standard deviations of 0.006 / 0.004 (at σ_a = 0.1:
+  0.0055 / 0.004). The NIS stays below 3 and strong tracking fires on ≈ 2 %
+  of the steps, so a too-small R0 shows as over-confident variances, not as
+  a fading factor stuck above 1.
+* ``Q0``: 0.02 m/s per 10 ms step is 2 m/s² of unmodelled specific force
+  (rolling resistance 0.2–0.5 m/s² for c_rr = 0.02–0.05, a 1° slope
+  0.17 m/s², tire-model error of a few 100 N per wheel), 0.005 rad/s per
+  step is 0.5 rad/s² of yaw acceleration, ≈ 3 kN·m on I_z = 6390 kg·m²
+  (against lateral tire moments of ≈ 10 kN·m in a tight turn). The brush
+  model relaxes velocities within 0.02–0.1 s at driving speeds, so the
+  propagated spread stays small and Q0 dominates the prior (measured at
+  2 m/s: ``P̄0`` ≈ 2.5e-5 against Q0 = 4e-4 (m/s)² for vx). Q is per
+  ``q_step_dt`` (10 ms) and scales linearly with the actual step (a random
+  walk).
+
+**Derived outputs (B.3).** :func:`side_slips` (κ per side, bounded,
+positive in traction), :func:`tire_sideslips` (six α, wheel order FL, ML,
+RL, FR, MR, RR), :func:`encoder_kinematics` (slip-free ``vx``, ``r`` from the
+wheel speeds alone) and :func:`derived_outputs` (all of them plus body
+sideslip and the ICR with its validity flag).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from terrain_estimation.filters.base import Array
+from terrain_estimation.models.skid_steer import (
+    SkidSteerParams,
+    body_forces,
+    body_sideslip,
+    brush_tire_forces,
+    contact_velocities,
+    instantaneous_centre_of_rotation,
+    quasi_static_loads,
+    side_slip_ratios,
+    theoretical_slips,
+    tire_sideslip_angles,
+    wheel_positions,
+)
+
+__all__ = [
+    "DEFAULT_Q0_DIAG",
+    "DEFAULT_R0_DIAG",
+    "SkidSteerInput",
+    "SkidSteerObserverModel",
+    "SkidSteerOutputs",
+    "relaxation_rate_per_speed",
+    "side_slips",
+    "tire_sideslips",
+    "encoder_kinematics",
+    "derived_outputs",
+]
+
+#: Base process noise per 10 ms step, ((m/s)², (m/s)², (rad/s)²) (MODELS.md B.10).
+DEFAULT_Q0_DIAG: tuple[float, float, float] = (0.02**2, 0.02**2, 0.005**2)
+#: Base measurement noise, ((m/s²)², (m/s²)², (rad/s)²) (MODELS.md B.10).
+DEFAULT_R0_DIAG: tuple[float, float, float] = (0.1**2, 0.1**2, 0.005**2)
+
+
+@dataclass(frozen=True)
+class SkidSteerInput:
+    """Input of one observer step (MODELS.md B.7), held constant over the step.
+
+    Attributes:
+        omega_left: left-side wheel speed ω_l (rad/s, wheel side: motor ÷ i_g).
+        omega_right: right-side wheel speed ω_r (rad/s).
+        ax: low-pass-filtered measured longitudinal acceleration for the load
+            model (m/s², specific force on flat ground).
+        ay: same, lateral (m/s²).
+        friction: tire–ground friction coefficient μ; None uses the vehicle's
+            ``SkidSteerParams.friction``.
+    """
+
+    omega_left: float
+    omega_right: float
+    ax: float = 0.0
+    ay: float = 0.0
+    friction: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("omega_left", "omega_right", "ax", "ay"):
+            value = getattr(self, name)
+            if not math.isfinite(value):
+                raise ValueError(f"SkidSteerInput.{name} must be finite, got {value}")
+        mu = self.friction
+        if mu is not None and not (math.isfinite(mu) and mu > 0.0):
+            raise ValueError(f"SkidSteerInput.friction must be None or finite and > 0, got {mu}")
+
+
+def relaxation_rate_per_speed(p: SkidSteerParams) -> float:
+    """``κ_v``: bound of the velocity relaxation rate times the rolling speed (m/s²).
+
+    Linearised brush tire (unsaturated), wheel w at ``(x_w, y_w)``: the
+    generalised forces on ``[vx, vy, r]`` are ``−(1/V_r) D v`` with
+    ``D = Σ_w C_x e_x e_xᵀ + C_α e_y e_yᵀ``, ``e_x = (1, 0, −y_w)``,
+    ``e_y = (0, 1, x_w)``. The rates are the eigenvalues of ``M⁻¹ D / V_r``,
+    ``M = diag(m, m, I_z)``; for unequal side speeds ``D/V ⪯ D/min V``. The
+    Coriolis terms (``±vy r, ∓vx r``) are ignored: they rotate, not relax.
+    """
+    xw, yw = wheel_positions(p)
+    d = np.zeros((3, 3))
+    for x_i, y_i in zip(xw, yw, strict=True):
+        ex = np.array([1.0, 0.0, -y_i])
+        ey = np.array([0.0, 1.0, x_i])
+        d += p.longitudinal_stiffness * np.outer(ex, ex) + p.cornering_stiffness * np.outer(ey, ey)
+    s = 1.0 / np.sqrt(np.array([p.mass, p.mass, p.yaw_inertia]))
+    return float(np.linalg.eigvalsh(s[:, None] * d * s[None, :])[-1])
+
+
+@dataclass(frozen=True)
+class _StepTerms:
+    """Per-input constants of a step: wheel speeds per wheel, loads, μ, rolling floor."""
+
+    omega6: Array
+    normal_load: Array
+    friction: float
+    min_rolling_speed: float
+
+
+class SkidSteerObserverModel:
+    """3-state skid-steer observer model (MODELS.md B.6–B.7) for the sigma-point filters.
+
+    ``f`` and ``h`` are vectorised over points (``(m, 3)`` → ``(m, 3)``), as
+    the filter protocol requires, and take a :class:`SkidSteerInput`.
+
+    Args:
+        params: vehicle (Table 1 plus μ, ε).
+        q0_diag: base process-noise variances ``Q0`` per ``q_step_dt``
+            ((m/s)², (m/s)², (rad/s)²); see the module docstring for the
+            defaults.
+        r0_diag: base measurement-noise variances ``R0`` of
+            ``[a_x, a_y, r]`` ((m/s²)², (m/s²)², (rad/s)²), all > 0.
+        q_step_dt: step length ``Q0`` refers to (s); Q scales with ``dt/q_step_dt``.
+        substeps: the minimum number of Euler sub-steps per step (≥ 1).
+        max_euler_gain: upper bound of ``δ · κ_v / V_r`` per sub-step; the
+            number of sub-steps grows to respect it. None: exactly
+            ``substeps`` sub-steps (1 = the literal B.6 scheme, unstable at
+            low speed).
+        max_substeps: ``f`` raises ValueError if a step needs more.
+
+    Raises:
+        ValueError: on invalid arguments.
+    """
+
+    def __init__(
+        self,
+        params: SkidSteerParams | None = None,
+        *,
+        q0_diag: tuple[float, float, float] = DEFAULT_Q0_DIAG,
+        r0_diag: tuple[float, float, float] = DEFAULT_R0_DIAG,
+        q_step_dt: float = 0.01,
+        substeps: int = 1,
+        max_euler_gain: float | None = 0.5,
+        max_substeps: int = 1000,
+    ) -> None:
+        self.params = params if params is not None else SkidSteerParams()
+        q = tuple(float(v) for v in q0_diag)
+        r = tuple(float(v) for v in r0_diag)
+        if len(q) != 3 or not all(math.isfinite(v) and v >= 0.0 for v in q):
+            raise ValueError(f"q0_diag must hold 3 finite variances >= 0, got {q0_diag}")
+        if len(r) != 3 or not all(math.isfinite(v) and v > 0.0 for v in r):
+            raise ValueError(f"r0_diag must hold 3 finite variances > 0, got {r0_diag}")
+        if not (math.isfinite(q_step_dt) and q_step_dt > 0.0):
+            raise ValueError(f"q_step_dt must be finite and > 0, got {q_step_dt}")
+        if not (isinstance(substeps, int) and substeps >= 1):
+            raise ValueError(f"substeps must be an int >= 1, got {substeps}")
+        if max_euler_gain is not None and not (math.isfinite(max_euler_gain) and 0.0 < max_euler_gain < 2.0):
+            raise ValueError(f"max_euler_gain must be None or in (0, 2), got {max_euler_gain}")
+        if not (isinstance(max_substeps, int) and max_substeps >= substeps):
+            raise ValueError(f"max_substeps must be an int >= substeps, got {max_substeps}")
+        self.q0_diag: tuple[float, ...] = q
+        self.r0_diag: tuple[float, ...] = r
+        self.q_step_dt = float(q_step_dt)
+        self.substeps = substeps
+        self.max_euler_gain = max_euler_gain
+        self.max_substeps = max_substeps
+        self.relaxation_rate_per_speed = relaxation_rate_per_speed(self.params)
+        self._q0_sqrt = np.sqrt(np.array(q))
+        self._r0_sqrt = np.diag(np.sqrt(np.array(r)))
+        # One-entry cache of the per-input terms: f and h see the same frozen
+        # input object several times per filter step (propagate, moments, update).
+        self._cached_input: SkidSteerInput | None = None
+        self._cached_terms: _StepTerms | None = None
+
+    # -- StateSpaceModel ----------------------------------------------------
+    @property
+    def state_dim(self) -> int:
+        return 3
+
+    @property
+    def measurement_dim(self) -> int:
+        return 3
+
+    def f(self, x: Array, u: Any, dt: float) -> Array:
+        """Forward Euler of B.6 over ``N`` sub-steps (module docstring): ``(3,)``/``(m, 3)`` → same shape.
+
+        ::
+
+            vx ← vx + δ (ΣF_x/m + vy r)
+            vy ← vy + δ (ΣF_y/m − vx r)
+            r  ← r  + δ M_z/I_z,          δ = dt/N
+
+        Raises:
+            ValueError: ``dt`` not finite and > 0, a non-input ``u``, or more
+                than ``max_substeps`` sub-steps needed.
+        """
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"dt must be finite and > 0, got {dt}")
+        terms = self._terms(u)
+        n_sub = self._substeps(terms, dt)
+        delta = dt / n_sub
+        p = self.params
+        xs = np.array(x, dtype=float)  # a copy: the caller's points stay untouched
+        vx, vy, r = xs[..., 0], xs[..., 1], xs[..., 2]
+        for _ in range(n_sub):
+            fx, fy, mz = self._forces(vx, vy, r, terms)
+            vx, vy, r = (
+                vx + delta * (fx / p.mass + vy * r),
+                vy + delta * (fy / p.mass - vx * r),
+                r + delta * mz / p.yaw_inertia,
+            )
+        out: Array = np.stack([vx, vy, r], axis=-1)
+        return out
+
+    def h(self, x: Array, u: Any) -> Array:
+        """``[ΣF_x/m, ΣF_y/m, r]`` at the state (B.7): ``(3,)``/``(m, 3)`` → same shape."""
+        terms = self._terms(u)
+        xs = np.asarray(x, dtype=float)
+        vx, vy, r = xs[..., 0], xs[..., 1], xs[..., 2]
+        fx, fy, _ = self._forces(vx, vy, r, terms)
+        m = self.params.mass
+        out: Array = np.stack([fx / m, fy / m, r], axis=-1)
+        return out
+
+    def process_noise_sqrt(self, x: Array, u: Any, dt: float) -> Array:
+        """``√Q_k = diag(√(q0 · dt/q_step_dt))`` (B.10 base noise, random-walk scaling)."""
+        return np.diag(self._q0_sqrt * math.sqrt(dt / self.q_step_dt))
+
+    def measurement_noise_sqrt(self) -> Array:
+        """``√R0 = diag(√r0)`` (B.10 base noise)."""
+        return self._r0_sqrt.copy()
+
+    # -- for the adaptive filter (B.10) ---------------------------------------
+    def tire_sideslip(self, x: Array, u: Any = None) -> Array:
+        """Six tire sideslip angles α at the state (paper eq. 6), rad; ``(3,)`` → ``(6,)``."""
+        return tire_sideslips(x, self.params)
+
+    # -- helpers ----------------------------------------------------------------
+    def substep_count(self, u: SkidSteerInput, dt: float) -> int:
+        """Number of Euler sub-steps ``f`` uses for this input and step (see module docstring)."""
+        return self._substeps(self._terms(u), dt)
+
+    def forces(self, x: Array, u: SkidSteerInput) -> tuple[Array, Array, Array]:
+        """``(ΣF_x, ΣF_y, M_z)`` at the state(s) ``x`` ``(..., 3)`` (N, N, N·m)."""
+        xs = np.asarray(x, dtype=float)
+        return self._forces(xs[..., 0], xs[..., 1], xs[..., 2], self._terms(u))
+
+    def _substeps(self, terms: _StepTerms, dt: float) -> int:
+        if self.max_euler_gain is None:
+            return self.substeps
+        rate = self.relaxation_rate_per_speed / terms.min_rolling_speed
+        n = max(self.substeps, math.ceil(dt * rate / self.max_euler_gain - 1e-9))
+        if n > self.max_substeps:
+            raise ValueError(
+                f"step of {dt} s needs {n} Euler sub-steps at rolling speed {terms.min_rolling_speed} m/s "
+                f"(max_substeps = {self.max_substeps})"
+            )
+        return n
+
+    def _terms(self, u: Any) -> _StepTerms:
+        if u is self._cached_input and self._cached_terms is not None:
+            return self._cached_terms
+        if not isinstance(u, SkidSteerInput):
+            raise ValueError(f"u must be a SkidSteerInput, got {type(u).__name__}")
+        p = self.params
+        omega6 = np.repeat(np.array([u.omega_left, u.omega_right]), 3)
+        rolling = max(min(abs(u.omega_left), abs(u.omega_right)) * p.wheel_radius, p.rolling_speed_floor)
+        terms = _StepTerms(
+            omega6=omega6,
+            normal_load=quasi_static_loads(u.ax, u.ay, p),
+            friction=p.friction if u.friction is None else u.friction,
+            min_rolling_speed=rolling,
+        )
+        self._cached_input, self._cached_terms = u, terms
+        return terms
+
+    def _forces(self, vx: Array, vy: Array, r: Array, terms: _StepTerms) -> tuple[Array, Array, Array]:
+        """Summed brush forces and yaw moment (B.3–B.6) for state components of any shape."""
+        p = self.params
+        v_x, v_y = contact_velocities(vx, vy, r, p)
+        sx, sy = theoretical_slips(terms.omega6, v_x, v_y, p)
+        fx, fy = brush_tire_forces(
+            sx,
+            sy,
+            terms.normal_load,
+            longitudinal_stiffness=p.longitudinal_stiffness,
+            cornering_stiffness=p.cornering_stiffness,
+            friction=terms.friction,
+        )
+        return body_forces(fx, fy, p)
+
+
+@dataclass(frozen=True)
+class SkidSteerOutputs:
+    """Quantities derived from one state and the wheel speeds (MODELS.md B.3).
+
+    Attributes:
+        slip_left, slip_right: longitudinal slip per side κ (bounded, > 0 in traction).
+        tire_sideslip: six tire sideslip angles α (rad), order FL, ML, RL, FR, MR, RR.
+        body_sideslip: β = atan2(vy, vx) (rad, eq. 40).
+        icr_x, icr_y: ICR in body axes (m, eq. 41); 0 when not valid.
+        icr_valid: |r| above the threshold (the ICR is meaningless as r → 0).
+        vx_encoder: slip-free ``R(ω_l + ω_r)/2`` (m/s).
+        yaw_rate_encoder: slip-free ``R(ω_r − ω_l)/B`` (rad/s), the "encoder
+            yaw rate" that overestimates r in turns.
+    """
+
+    slip_left: float
+    slip_right: float
+    tire_sideslip: tuple[float, ...]
+    body_sideslip: float
+    icr_x: float
+    icr_y: float
+    icr_valid: bool
+    vx_encoder: float
+    yaw_rate_encoder: float
+
+
+def side_slips(x: Any, omega_left: Any, omega_right: Any, p: SkidSteerParams) -> Array:
+    """Per-side slip ``κ_l, κ_r`` at state(s) ``x`` ``(..., 3)`` (B.3), shape ``(..., 2)``.
+
+    The side contact lines move at ``vx ∓ r B/2`` (eq. 3); the bounded slip of
+    :func:`~terrain_estimation.models.skid_steer.side_slip_ratios` follows.
+    """
+    xs = np.asarray(x, dtype=float)
+    half = 0.5 * p.track * xs[..., 2]
+    v_side = np.stack([xs[..., 0] - half, xs[..., 0] + half], axis=-1)
+    omega = np.stack(np.broadcast_arrays(np.asarray(omega_left, float), np.asarray(omega_right, float)), axis=-1)
+    return side_slip_ratios(omega, v_side, p)
+
+
+def tire_sideslips(x: Any, p: SkidSteerParams) -> Array:
+    """Six tire sideslip angles α (eqs. 5–6) at state(s) ``x`` ``(..., 3)``, shape ``(..., 6)``."""
+    xs = np.asarray(x, dtype=float)
+    v_x, v_y = contact_velocities(xs[..., 0], xs[..., 1], xs[..., 2], p)
+    return tire_sideslip_angles(v_x, v_y)
+
+
+def encoder_kinematics(omega_left: float, omega_right: float, p: SkidSteerParams) -> tuple[float, float]:
+    """Slip-free kinematic estimates from the wheel speeds alone (eq. 1 with κ = 0).
+
+    Returns:
+        ``(vx, r) = (R(ω_l + ω_r)/2, R(ω_r − ω_l)/B)`` (m/s, rad/s).
+    """
+    rad = p.wheel_radius
+    return 0.5 * rad * (omega_left + omega_right), rad * (omega_right - omega_left) / p.track
+
+
+def derived_outputs(
+    x: Any, omega_left: float, omega_right: float, p: SkidSteerParams, min_yaw_rate: float = 0.02
+) -> SkidSteerOutputs:
+    """Slips, sideslip angles, body sideslip, ICR and encoder estimates at one state ``(3,)`` (B.3).
+
+    Every returned float is finite for a finite state (the ICR is 0 and
+    ``icr_valid`` False where ``|r| ≤ min_yaw_rate``).
+    """
+    xs = np.asarray(x, dtype=float)
+    if xs.shape != (3,):
+        raise ValueError(f"x must have shape (3,), got {xs.shape}")
+    kappa = side_slips(xs, omega_left, omega_right, p)
+    alpha = tire_sideslips(xs, p)
+    ix, iy, ok = instantaneous_centre_of_rotation(xs[0], xs[1], xs[2], min_yaw_rate)
+    vx_enc, r_enc = encoder_kinematics(omega_left, omega_right, p)
+    return SkidSteerOutputs(
+        slip_left=float(kappa[0]),
+        slip_right=float(kappa[1]),
+        tire_sideslip=tuple(float(a) for a in alpha),
+        body_sideslip=float(body_sideslip(xs[0], xs[1])),
+        icr_x=float(ix),
+        icr_y=float(iy),
+        icr_valid=bool(ok),
+        vx_encoder=float(vx_enc),
+        yaw_rate_encoder=float(r_enc),
+    )
