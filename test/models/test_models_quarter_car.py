@@ -371,6 +371,16 @@ def test_log_state_keeps_ktot_inside_the_series_stiffness() -> None:
         k_tot, k_var, k_s, k_s_var = log.stiffness_moments(v, 0.04)
         assert all(math.isfinite(q) for q in (k_tot, k_var, k_s, k_s_var))
         assert k_s > 0.0
+    # The state's range (default ±ln 100) bounds k_s and the dynamics' k_tot alike.
+    assert log.stiffness_moments(1e6, 0.01)[2] == pytest.approx(100.0 * KT)
+    assert log.stiffness_moments(-1e6, 0.01)[2] == pytest.approx(KT / 100.0)
+    assert float(log.ktot_of(40.0)) == float(log.ktot_of(math.log(100.0)))
+    assert log.project_stiffness_state(40.0) == pytest.approx(math.log(100.0))
+    assert log.ktot_slope(40.0) == 0.0 and log.ktot_slope(0.0) == pytest.approx(KT / 4)
+    narrow = QuarterCarModel(QuarterCarParams(stiffness_state="log_k_s", log_ks_range=(-1.0, 1.0)))
+    assert narrow.project_stiffness_state(3.0) == 1.0
+    with pytest.raises(ValueError, match="log_ks_range"):
+        QuarterCarParams(log_ks_range=(1.0, -1.0))
     k_tot, _, k_s, k_s_var = log.stiffness_moments(math.log(651.1e3 / KT), 0.01)
     assert k_s == pytest.approx(651.1e3, rel=1e-12)
     assert math.sqrt(k_s_var) / k_s == pytest.approx(0.1, rel=1e-12)  # var of ln k_s = relative variance

@@ -84,9 +84,12 @@ KtotNoiseForm = Literal["per_step", "printed"]
 JacobianForm = Literal["exact", "paper"]
 StiffnessState = Literal["k_tot", "log_k_s"]
 
-#: |s| bound of the ``"log_k_s"`` state s = ln(k_s/k_series): e^±30 covers any
-#: physical stiffness and keeps the logistic map and its slope finite.
-_LOG_KS_BOUND = 30.0
+#: Default range of the ``"log_k_s"`` state s = ln(k_s/k_series): k_s between
+#: k_series/100 and 100·k_series (1.75 kN/m … 17.5 MN/m on the quarter car, every
+#: soil of Table 1 with a wide margin). The bound matters: with k_s ≫ k_series,
+#: k_tot → k_series and the accelerations stop depending on s, so a mean thrown
+#: far beyond it by one large innovation (a soil change) would stay there.
+_LOG_KS_RANGE = (-math.log(100.0), math.log(100.0))
 
 
 def _check_common(
@@ -103,6 +106,7 @@ def _check_common(
     ktot_max_frac: float,
     stiffness_state: str,
     q_log_ks_per_step: float,
+    log_ks_range: tuple[float, ...],
 ) -> None:
     if len(q_diag) != n or any(not np.isfinite(q) or q < 0 for q in q_diag):
         raise ValueError(f"q_diag must hold {n} finite non-negative variances, got {q_diag}")
@@ -124,6 +128,8 @@ def _check_common(
         raise ValueError(f"stiffness_state must be 'k_tot' or 'log_k_s', got {stiffness_state!r}")
     if not (np.isfinite(q_log_ks_per_step) and q_log_ks_per_step >= 0):
         raise ValueError(f"q_log_ks_per_step must be finite and >= 0, got {q_log_ks_per_step}")
+    if len(log_ks_range) != 2 or not (np.all(np.isfinite(log_ks_range)) and log_ks_range[0] < log_ks_range[1]):
+        raise ValueError(f"log_ks_range must be two finite, increasing values, got {log_ks_range}")
 
 
 @dataclass(frozen=True)
@@ -166,6 +172,11 @@ class QuarterCarParams:
             per ``ktot_step_dt`` (``"log_k_s"`` only). Default 1e-6: a 0.1 %
             relative walk of k_s per 10 ms step, which equals the k_tot walk
             of 1e3 (N/m)² at Graneville loam on the quarter car.
+        log_ks_range: ``(s_min, s_max)`` of the ``"log_k_s"`` state: the
+            dynamics use s clipped into it and the estimator projects the mean
+            into it. Default ``±ln 100``: k_s within a factor 100 of k_series.
+            Far above k_series the accelerations barely depend on s, and a mean
+            thrown beyond the range by one large innovation would stay there.
     """
 
     m_s: float = 455.0
@@ -184,6 +195,7 @@ class QuarterCarParams:
     ktot_max_frac: float = 0.999
     stiffness_state: StiffnessState = "k_tot"
     q_log_ks_per_step: float = 1e-6
+    log_ks_range: tuple[float, float] = _LOG_KS_RANGE
 
     def __post_init__(self) -> None:
         for name in ("m_s", "m_ns", "k", "k_t"):
@@ -206,6 +218,7 @@ class QuarterCarParams:
             self.ktot_max_frac,
             self.stiffness_state,
             self.q_log_ks_per_step,
+            tuple(self.log_ks_range),
         )
 
     @property
@@ -244,8 +257,8 @@ class LRVParams:
             fire (a 2× change of k_s on the LRV: rms error 22 % ten seconds
             later vs 7 % with 1e3, 3.7 % with 100).
         ktot_step_dt, ktot_noise_form, discretisation, ekf_jacobian,
-        ktot_min_frac, ktot_max_frac, stiffness_state, q_log_ks_per_step: as
-            in :class:`QuarterCarParams` (fractions of ``k``).
+        ktot_min_frac, ktot_max_frac, stiffness_state, q_log_ks_per_step,
+        log_ks_range: as in :class:`QuarterCarParams` (fractions of ``k``).
     """
 
     m_s: float = 75.0
@@ -263,6 +276,7 @@ class LRVParams:
     ktot_max_frac: float = 0.999
     stiffness_state: StiffnessState = "k_tot"
     q_log_ks_per_step: float = 1e-6
+    log_ks_range: tuple[float, float] = _LOG_KS_RANGE
 
     def __post_init__(self) -> None:
         for name in ("m_s", "k"):
@@ -285,6 +299,7 @@ class LRVParams:
             self.ktot_max_frac,
             self.stiffness_state,
             self.q_log_ks_per_step,
+            tuple(self.log_ks_range),
         )
 
     @property
@@ -450,6 +465,7 @@ class _BilinearKtotModel:
     _jacobian_form: JacobianForm
     _stiffness_state: StiffnessState = "k_tot"
     _q_log_ks_per_step: float = 0.0
+    _log_ks_range: tuple[float, float] = _LOG_KS_RANGE
 
     def _finish_init(self) -> None:
         n = self._a0.shape[0]
@@ -513,18 +529,20 @@ class _BilinearKtotModel:
         """k_tot (N/m) the dynamics use for the last-state value(s) ``v``.
 
         ``"k_tot"``: ``v`` clamped into :attr:`ktot_bounds`; ``"log_k_s"``:
-        ``k_series · logistic(v)`` (``v`` clipped to ±30), always inside
-        ``(0, k_series)``.
+        ``k_series · logistic(v)`` (``v`` clipped into ``log_ks_range``),
+        always inside ``(0, k_series)``.
         """
         v = np.asarray(v, dtype=float)
         if self._stiffness_state == "log_k_s":
-            return self._k_series / (1.0 + np.exp(-np.clip(v, -_LOG_KS_BOUND, _LOG_KS_BOUND)))
+            lo, hi = self._log_ks_range
+            return self._k_series / (1.0 + np.exp(-np.clip(v, lo, hi)))
         return self.clamp_ktot(v)
 
     def ktot_slope(self, v: float) -> float:
         """``dk_tot/dv`` of :meth:`ktot_of` at one value (0 where clamped or clipped)."""
         if self._stiffness_state == "log_k_s":
-            if abs(v) >= _LOG_KS_BOUND:
+            lo, hi = self._log_ks_range
+            if not lo < v < hi:
                 return 0.0
             sig = 1.0 / (1.0 + math.exp(-v))
             return self._k_series * sig * (1.0 - sig)
@@ -534,13 +552,13 @@ class _BilinearKtotModel:
         """The last-state value that represents ``k_tot`` (inverse of :meth:`ktot_of`)."""
         k = float(self.clamp_ktot(k_tot))
         if self._stiffness_state == "log_k_s":
-            return math.log(k / (self._k_series - k))
+            return self.project_stiffness_state(math.log(k / (self._k_series - k)))
         return k
 
     def project_stiffness_state(self, v: float) -> float:
-        """Project a posterior value into the model's range (clamp or ±30 clip)."""
+        """Project a posterior value into the model's range (k_tot clamp or ``log_ks_range``)."""
         if self._stiffness_state == "log_k_s":
-            return float(np.clip(v, -_LOG_KS_BOUND, _LOG_KS_BOUND))
+            return float(np.clip(v, *self._log_ks_range))
         return float(self.clamp_ktot(v))
 
     def stiffness_moments(self, v: float, var: float) -> tuple[float, float, float, float]:
@@ -553,7 +571,7 @@ class _BilinearKtotModel:
         ln k_s (log form): unknown, never NaN.
         """
         if self._stiffness_state == "log_k_s":
-            s = float(np.clip(v, -_LOG_KS_BOUND, _LOG_KS_BOUND))
+            s = float(np.clip(v, *self._log_ks_range))
             var_s = var if (math.isfinite(var) and var >= 0.0) else 1.0
             k_s = self._k_series * math.exp(s)
             slope = self.ktot_slope(s)
@@ -817,6 +835,7 @@ class QuarterCarModel(_BilinearKtotModel):
         self._jacobian_form = p.ekf_jacobian
         self._stiffness_state = p.stiffness_state
         self._q_log_ks_per_step = p.q_log_ks_per_step
+        self._log_ks_range = (float(p.log_ks_range[0]), float(p.log_ks_range[1]))
         self._finish_init()
 
 
@@ -866,4 +885,5 @@ class LRVModel(_BilinearKtotModel):
         self._jacobian_form = p.ekf_jacobian
         self._stiffness_state = p.stiffness_state
         self._q_log_ks_per_step = p.q_log_ks_per_step
+        self._log_ks_range = (float(p.log_ks_range[0]), float(p.log_ks_range[1]))
         self._finish_init()
