@@ -38,7 +38,7 @@ def test_every_parameter_has_a_comment_and_validates(vehicle):
     resolve_parameters(sim_specs, load_parameter_file(path, [sim.node_name]), strict=True)
 
 
-@pytest.mark.parametrize("vehicle", sorted(VEHICLES))
+@pytest.mark.parametrize("vehicle", ["quarter_car", "lrv"])
 def test_p0_of_the_stiffness_state_is_checked_against_its_units(vehicle):
     """A k_tot variance left in filter.p0_diag after switching to log_k_s (or the reverse) is an error."""
     from terrain_estimation.ros.soil_stiffness import estimator_config

@@ -62,6 +62,9 @@ VEHICLES: dict[str, VehicleEntry] = {
         "quarter_car", "/quarter_car", "soil_stiffness", "terrain_estimation.ros.soil_stiffness"
     ),
     "lrv": VehicleEntry("lrv", "/lrv", "soil_stiffness", "terrain_estimation.ros.soil_stiffness"),
+    "skid_steer": VehicleEntry(
+        "skid_steer", "/skid_steer", "skid_steer_estimator", "terrain_estimation.ros.skid_steer"
+    ),
 }
 
 

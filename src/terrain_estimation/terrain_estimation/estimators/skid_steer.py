@@ -128,6 +128,8 @@ class SkidSteerEstimatorConfig:
         accel_cutoff_hz: cut-off of the first-order low-pass of the measured
             ``a_x, a_y`` that feed the load model (Hz).
         min_yaw_rate: ICR published only for ``|r|`` above it (rad/s, B.3).
+        min_sideslip_speed: below this speed (m/s) the body and tire sideslip
+            angles are undefined and reported as 0 with variance π².
         max_wheel_speed_age_s: wheel speeds further than this from the IMU
             stamp are stale (s).
         max_step_s: a longer gap between steps restarts the filter (s).
@@ -157,6 +159,7 @@ class SkidSteerEstimatorConfig:
     max_substeps: int = 1000
     accel_cutoff_hz: float = 2.0
     min_yaw_rate: float = 0.02
+    min_sideslip_speed: float = 0.2
     max_wheel_speed_age_s: float = 0.05
     max_step_s: float = 0.1
     friction: float | None = None
@@ -171,7 +174,7 @@ class SkidSteerEstimatorConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be finite and > 0, got {value}")
-        for name in ("min_yaw_rate", "k_q", "k_r"):
+        for name in ("min_yaw_rate", "min_sideslip_speed", "k_q", "k_r"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value}")
@@ -535,6 +538,12 @@ class SkidSteerEstimator:
         v2 = max(float(x[0] ** 2 + x[1] ** 2), cfg.vehicle.rolling_speed_floor**2)
         jac = np.array([-x[1], x[0]]) / v2
         beta_var = min(float(jac @ P[:2, :2] @ jac), math.pi**2)
+        beta, alpha = out.body_sideslip, out.tire_sideslip
+        if v2 < cfg.min_sideslip_speed**2:
+            # Near standstill the direction of travel, hence every sideslip
+            # angle, is undefined: atan2 of two noise-sized velocities would
+            # publish angles up to ±π. Report 0 with the whole-range variance.
+            beta, beta_var, alpha = 0.0, math.pi**2, (0.0,) * len(out.tire_sideslip)
         px, py, yaw = self._pose
         return SkidSteerEstimate(
             t=t,
@@ -544,11 +553,11 @@ class SkidSteerEstimator:
             vy_variance=float(P[1, 1]),
             yaw_rate=float(x[2]),
             yaw_rate_variance=float(P[2, 2]),
-            body_sideslip=out.body_sideslip,
+            body_sideslip=beta,
             body_sideslip_variance=max(beta_var, 0.0),
             slip_left=out.slip_left,
             slip_right=out.slip_right,
-            tire_sideslip=out.tire_sideslip,
+            tire_sideslip=alpha,
             icr_x=out.icr_x,
             icr_y=out.icr_y,
             icr_valid=out.icr_valid,
