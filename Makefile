@@ -30,7 +30,7 @@ export OMP_NUM_THREADS ?= 1
 
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc bench bags clean distclean constraints
+.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc reproduce-skid bench bags clean distclean constraints
 
 setup: $(PKGS_STAMP)
 
@@ -74,6 +74,9 @@ reproduce: reproduce-qc
 reproduce-qc: setup
 	$(PY) -m terrain_estimation.tools.reproduce_qc --out docs/results --jobs 2
 
+reproduce-skid: setup
+	$(PY) -m terrain_estimation.tools.reproduce_skid --out docs/results --jobs 2
+
 constraints: setup
 	{ head -n 3 constraints.txt; $(PIP) freeze | grep -v -E '^(-e |terrain|vehicle)'; } > constraints.txt.new
 	mv constraints.txt.new constraints.txt
@@ -93,3 +96,9 @@ bags: setup
 	$(PY) -m vehicle_sim.tools.simulate --vehicle lrv --duration 4 -o bags/lrv_regolith_iso_g_2ms \
 		--param scenario.road=G --param scenario.road_seed=21 --param seed=22 --param scenario.speed=2.0 \
 		--param 'scenario.soils=[lunar_regolith]'
+	$(PY) -m vehicle_sim.tools.simulate --vehicle skid_steer --duration 12 -o bags/skid_steer_straight_acceleration \
+		--param scenario.manoeuvre=straight_acceleration --param seed=31
+	$(PY) -m vehicle_sim.tools.simulate --vehicle skid_steer --duration 14 -o bags/skid_steer_small_radius_turn \
+		--param scenario.manoeuvre=small_radius_turn --param seed=32
+	$(PY) -m vehicle_sim.tools.simulate --vehicle skid_steer --duration 10 -o bags/skid_steer_s_shape \
+		--param scenario.manoeuvre=s_shape --param seed=33

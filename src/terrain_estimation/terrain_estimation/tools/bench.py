@@ -23,7 +23,16 @@ One run prints, side by side (``make bench``):
    spent inside the filter measured by a timing proxy. The µs-per-step column
    shows where the time goes: filter < core < bag.
 3. **Simulator** (``vehicle_sim`` ``simulate()``) as a multiple of real time.
-4. **Machine**: CPU count and load average (other processes on the CPUs
+4. **Skid steer** ([SS], MODELS.md Part B): per-step time of the UKF, STUKF
+   and AN-STUKF (:class:`~terrain_estimation.filters.an_stukf.AdaptiveStrongTrackingUKF`
+   over the 3-state ``SkidSteerObserverModel``) side by side, each inside a
+   :class:`~terrain_estimation.estimators.skid_steer.SkidSteerEstimator` fed
+   the *same* simulated small-radius turn (``vehicle_sim`` truth plant,
+   recorded once in memory, wheel speeds then IMU at 100 Hz); the filter
+   step is timed by a proxy around ``filter.step``. The same runs give the
+   estimator's throughput over the drive as a multiple of real time, and the
+   skid-steer simulator's own speed.
+5. **Machine**: CPU count and load average (other processes on the CPUs
    preempt long steps first, so a p90 far above the median usually means a
    busy machine), Python, numpy, ``OPENBLAS_NUM_THREADS`` (``make`` sets it to
    1; a threaded BLAS only adds stalls on these 5 × 5 matrices).
@@ -49,7 +58,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ROW_LABELS", "BenchConfig", "main", "run_bench", "format_report"]
+__all__ = ["ROW_LABELS", "SKID_ROW_LABELS", "BenchConfig", "main", "run_bench", "format_report"]
 
 DT = 0.01  # filter step (s): 100 Hz, the estimator's rate
 SUBSTEPS = 10  # 1 kHz road sub-steps per step (MODELS.md A.10)
@@ -71,6 +80,16 @@ ROW_LABELS: tuple[str, ...] = (
     "core lrv",
     "simulate quarter_car",
     "simulate lrv",
+)
+
+SKID_FILTERS: tuple[tuple[str, str], ...] = (("UKF", "ukf"), ("STUKF", "stukf"), ("AN-STUKF", "an_stukf"))
+SKID_MANOEUVRE = "small_radius_turn"  # the paper's Table 2 manoeuvre: the tire model works hardest
+
+#: Row labels of the skid-steer section (filter step, estimator throughput, simulator).
+SKID_ROW_LABELS: tuple[str, ...] = (
+    *(f"skid {label}" for label, _ in SKID_FILTERS),
+    *(f"core skid_steer {name}" for _, name in SKID_FILTERS),
+    "simulate skid_steer",
 )
 
 
@@ -398,6 +417,111 @@ def bench_simulator(vehicle: str, drive: Callable[[float, int], Any], cfg: Bench
 
 
 # ---------------------------------------------------------------------------
+# 4. Skid steer
+# ---------------------------------------------------------------------------
+
+
+class _TimedStep:
+    """Delegates to an ``AdaptiveStrongTrackingUKF`` and records the time of every ``step``."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+        self.ns: list[int] = []
+
+    def initial_state(self, x0: Any, P0: Any) -> Any:  # noqa: N803
+        return self.inner.initial_state(x0, P0)
+
+    def step(self, *args: Any, **kwargs: Any) -> Any:
+        t0 = time.perf_counter_ns()
+        try:
+            return self.inner.step(*args, **kwargs)
+        finally:
+            self.ns.append(time.perf_counter_ns() - t0)
+
+
+def _drive_skid(duration: float, seed: int) -> Any:
+    """The paper's small-radius turn (truth effects on), simulated for ``duration`` s."""
+    from vehicle_sim.plants.skid_steer import MANOEUVRES, simulate_skid_steer
+
+    return simulate_skid_steer(MANOEUVRES[SKID_MANOEUVRE](duration=duration), seed)
+
+
+def bench_skid(cfg: BenchConfig) -> dict[str, Any]:
+    """UKF / STUKF / AN-STUKF per-step time and estimator throughput on one simulated turn, and the simulator."""
+    from terrain_estimation.estimators.skid_steer import SkidSteerEstimator, SkidSteerEstimatorConfig
+
+    # Enough samples for the warm-up and the timed steps (the first sample only initialises).
+    duration = max(cfg.drive_s, (cfg.warmup + cfg.steps + 1) * DT)
+    _drive_skid(0.1, cfg.seed)  # untimed: imports, caches
+    t0 = time.perf_counter()
+    result = _drive_skid(duration, cfg.seed)
+    sim_wall = time.perf_counter() - t0
+    simulator = {
+        "row": "simulate skid_steer",
+        "vehicle": "skid_steer",
+        "sim_s": duration,
+        "wall_s": sim_wall,
+        "x_real_time": duration / sim_wall if sim_wall > 0 else math.inf,
+        "steps": int(result.t.size),
+        "us_per_step": 1e6 * sim_wall / result.t.size,
+    }
+    # The same samples for every filter, as plain lists (time the estimator, not numpy indexing).
+    ts = result.t.tolist()
+    motor = result.motor_velocity.tolist()
+    accel = result.linear_acceleration.tolist()
+    gyro = result.angular_velocity.tolist()
+    filters: list[dict[str, Any]] = []
+    throughput: list[dict[str, Any]] = []
+    for label, name in SKID_FILTERS:
+        est = SkidSteerEstimator(SkidSteerEstimatorConfig(filter=name))  # type: ignore[arg-type]
+        timed = _TimedStep(est.filter)
+        est.filter = timed  # type: ignore[assignment]
+        start = time.perf_counter()
+        for i, t in enumerate(ts):
+            est.add_joint_state(t, motor[i][0], motor[i][1])
+            est.add_imu(t, accel[i][0], accel[i][1], gyro[i][2])
+            est.drain_estimates()
+        wall = time.perf_counter() - start
+        counters = est.counters
+        timed_ns = timed.ns[cfg.warmup : cfg.warmup + cfg.steps]
+        med, p90 = _percentiles_us(timed_ns)
+        filters.append(
+            {
+                "filter": f"skid {label}",
+                "variant": name,
+                "median_us": med,
+                "p90_us": p90,
+                "steps": len(timed_ns),
+                "strong_tracking_active": counters.strong_tracking_active,
+                "recoveries": counters.recoveries,
+            }
+        )
+        throughput.append(
+            {
+                "row": f"core skid_steer {name}",
+                "vehicle": "skid_steer",
+                "sim_s": duration,
+                "wall_s": wall,
+                "x_real_time": duration / wall if wall > 0 else math.inf,
+                "steps": counters.steps,
+                "us_per_step": 1e6 * wall / counters.steps if counters.steps else math.nan,
+                "filter_us_per_step": 1e-3 * sum(timed.ns) / len(timed.ns) if timed.ns else math.nan,
+                "filter_share": 1e-9 * sum(timed.ns) / wall if wall > 0 else math.nan,
+            }
+        )
+    ukf = filters[0]["median_us"]
+    for r in filters:
+        r["ratio_to_ukf"] = r["median_us"] / ukf
+    return {
+        "manoeuvre": SKID_MANOEUVRE,
+        "duration_s": duration,
+        "filters": filters,
+        "throughput": throughput,
+        "simulator": [simulator],
+    }
+
+
+# ---------------------------------------------------------------------------
 # Report
 # ---------------------------------------------------------------------------
 
@@ -415,6 +539,7 @@ def run_bench(cfg: BenchConfig, bags_dir: Path = BAGS_DIR) -> dict[str, Any]:
     throughput.append(bench_core("lrv", run_lrv))
     out["throughput"] = throughput
     out["simulator"] = [sim_qc, sim_lrv]
+    out["skid_steer"] = bench_skid(cfg)
     return out
 
 
@@ -467,13 +592,54 @@ def format_report(figures: dict[str, Any]) -> str:
         lines.append(
             f"  {r['row']:<44}{r['sim_s']:>7.2f}{r['wall_s']:>9.3f}{r['x_real_time']:>13.1f}{r['us_per_step']:>10.0f}"
         )
+    if "skid_steer" in figures:
+        lines += ["", *_format_skid(figures["skid_steer"], cfg)]
     return "\n".join(lines)
+
+
+def _format_skid(skid: dict[str, Any], cfg: dict[str, Any]) -> list[str]:
+    """The skid-steer section of the readable table."""
+    lines = [
+        f"Skid-steer filter step (predict + update inside SkidSteerEstimator), SkidSteerObserverModel n=3 p=3, "
+        f"{skid['manoeuvre']} ({skid['duration_s']:.1f} s simulated, the same samples for every filter), "
+        f"{cfg['steps']} steps after {cfg['warmup']} warm-up",
+        f"  {'filter':<22}{'median µs':>11}{'p90 µs':>10}{'× UKF':>11}{'λ > 1 steps':>13}",
+    ]
+    for r in skid["filters"]:
+        lines.append(
+            f"  {r['filter']:<22}{r['median_us']:>11.1f}{r['p90_us']:>10.1f}{r['ratio_to_ukf']:>11.2f}"
+            f"{r['strong_tracking_active']:>13d}"
+        )
+    lines += [
+        "",
+        "Skid-steer estimator throughput (SkidSteerEstimator fed the simulated run; × real time)",
+        f"  {'what':<44}{'sim s':>7}{'wall s':>9}{'× real time':>13}{'µs/step':>10}{'filter µs/step':>16}",
+    ]
+    for r in skid["throughput"]:
+        filt = f"{r['filter_us_per_step']:.0f} ({100 * r['filter_share']:.0f} %)"
+        lines.append(
+            f"  {r['row']:<44}{r['sim_s']:>7.2f}{r['wall_s']:>9.3f}{r['x_real_time']:>13.1f}"
+            f"{r['us_per_step']:>10.0f}{filt:>16}"
+        )
+    lines += [
+        "",
+        "Skid-steer simulator (simulate_skid_steer(), RK4 at 2 ms, truth effects on)",
+        f"  {'what':<44}{'sim s':>7}{'wall s':>9}{'× real time':>13}{'µs/step':>10}",
+    ]
+    for r in skid["simulator"]:
+        lines.append(
+            f"  {r['row']:<44}{r['sim_s']:>7.2f}{r['wall_s']:>9.3f}{r['x_real_time']:>13.1f}{r['us_per_step']:>10.0f}"
+        )
+    return lines
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="terrain-bench",
-        description="Time the filters, the estimator (core and over the recorded bags) and the simulator.",
+        description=(
+            "Time the filters, the estimator (core and over the recorded bags) and the simulator; "
+            "and the skid-steer UKF / STUKF / AN-STUKF, estimator and simulator."
+        ),
     )
     parser.add_argument("--quick", action="store_true", help="short smoke run (few steps, 2 s drives)")
     parser.add_argument("--json", metavar="PATH", help="also write every figure to this JSON file")
