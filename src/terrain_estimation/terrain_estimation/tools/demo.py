@@ -5,62 +5,179 @@ process of its own (publishing ``/clock``, sensors and ground truth) and this
 process runs its estimator node (``use_sim_time``) and a recorder, all
 talking over ROS 2 topics through DDS on this host. The "estimates" column
 says how many of the expected estimates arrived: fewer means messages were
-lost (a loaded machine, or a real-time factor the estimator cannot keep). Afterwards it prints a table (final estimate
-against ground truth, time to converge, innovation consistency, the
-estimator's diagnostic level) and writes plots under ``out/``.
+lost (a loaded machine, or a real-time factor the estimator cannot keep).
+Afterwards it prints one table per kind of estimate and writes plots under
+``out/``:
+
+* soil stiffness (quarter car, LRV): final estimate against ground truth,
+  time to converge, innovation consistency, the estimator's diagnostic level;
+* skid-steer motion state: rms error of vx, vy, yaw rate and body sideslip
+  against ground truth, the instantaneous centre of rotation (ICR) over the
+  steady turn, the adaptive filter's fading factor and noise scale, the
+  innovation consistency and diagnostic level from the node's diagnostics.
+
+Each :class:`DemoScenario` names its :class:`DemoKind`: what to record
+(:class:`Recording`: message type, estimate topic, ground-truth topic) and how
+to summarise, plot and tabulate it. :func:`run_scenario` does the ROS 2 part
+the same way for every kind.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import math
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 
-__all__ = ["DemoScenario", "DemoResult", "SCENARIOS", "run_scenario", "main"]
+__all__ = [
+    "Recording",
+    "DemoRun",
+    "DemoKind",
+    "DemoScenario",
+    "SoilStiffnessResult",
+    "SkidSteerResult",
+    "SOIL_STIFFNESS",
+    "SKID_STEER",
+    "SCENARIOS",
+    "run_scenario",
+    "main",
+]
+
+
+# ---------------------------------------------------------------------------
+# What a scenario records, generically
+# ---------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
-class DemoScenario:
-    """One demo run: a vehicle, simulator overrides and how long to drive."""
+class Recording:
+    """The topics a scenario records, relative to the vehicle namespace, and their message type.
 
-    vehicle: str
-    title: str
-    duration: float
-    sim_overrides: dict[str, Any] = field(default_factory=dict)
-    estimate_topic: str = "soil_stiffness"
+    Attributes:
+        msg_type: ``"package.msg.Name"``, imported when the scenario runs (so
+            this module imports without ROS 2).
+        estimate_topic: the estimator's output.
+        truth_topic: the simulator's ground truth of the same message type.
+        other_sensors: ``(msg_type, topic)`` of simulated sensors the estimator
+            does not subscribe to: the simulator starts only when every sensor
+            topic has a subscriber, so the recorder subscribes to these (and
+            drops what arrives).
+    """
+
+    msg_type: str
+    estimate_topic: str
+    truth_topic: str
+    other_sensors: tuple[tuple[str, str], ...] = ()
+
+    def message_class(self) -> type:
+        return _import_type(self.msg_type)
 
 
-SCENARIOS: tuple[DemoScenario, ...] = (
-    DemoScenario(
-        "quarter_car",
-        "quarter car, ISO D, 10 m/s: Graneville loam, then Upland sandy loam after 100 m",
-        20.0,
-        {
-            "scenario.road": "D",
-            "scenario.speed": 10.0,
-            "scenario.soils": ["graneville_loam", "upland_sandy_loam"],
-            "scenario.soil_starts": [0.0, 100.0],
-        },
-    ),
-    DemoScenario(
-        "lrv",
-        "LRV, ISO G, 2 m/s, lunar regolith",
-        20.0,
-        {"scenario.road": "G", "scenario.speed": 2.0, "scenario.soils": ["lunar_regolith"]},
-    ),
-)
+def _import_type(dotted: str) -> type:
+    module, _, name = dotted.rpartition(".")
+    cls: type = getattr(importlib.import_module(module), name)
+    return cls
+
+
+def _stamps_ns(messages: Sequence[Any]) -> np.ndarray:
+    return np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in messages], dtype=np.int64)
 
 
 @dataclass
-class DemoResult:
+class DemoRun:
+    """What one scenario recorded: estimate and ground-truth messages, the estimator's diagnostics.
+
+    Attributes:
+        scenario: the scenario run.
+        estimates: estimate messages, in arrival order.
+        truth: ground-truth messages, in arrival order.
+        diagnostic_level: the estimator's diagnostic level at the end (``"OK"``, ...).
+        diagnostic_message: its message.
+        diagnostic_values: its key/values (as published: strings).
+        wall_time: wall-clock seconds from starting the simulator to the end of recording.
+    """
+
+    scenario: DemoScenario
+    estimates: list[Any]
+    truth: list[Any]
+    diagnostic_level: str
+    diagnostic_message: str
+    diagnostic_values: dict[str, str]
+    wall_time: float
+
+    @property
+    def times(self) -> np.ndarray:
+        """Estimate stamps (s)."""
+        return _stamps_ns(self.estimates) * 1e-9
+
+    def truth_index(self) -> np.ndarray:
+        """For each estimate, the index of the newest ground truth stamped at or before it."""
+        t_est = _stamps_ns(self.estimates)
+        t_truth = _stamps_ns(self.truth)
+        return np.clip(np.searchsorted(t_truth, t_est, side="right") - 1, 0, len(self.truth) - 1)
+
+    def estimate_field(self, name: str) -> np.ndarray:
+        return np.array([getattr(m, name) for m in self.estimates], dtype=float)
+
+    def truth_field(self, name: str, index: np.ndarray) -> np.ndarray:
+        """Ground truth of ``name`` at the estimates (``index``: :meth:`truth_index`)."""
+        return np.array([getattr(m, name) for m in self.truth], dtype=float)[index]
+
+
+R = TypeVar("R")
+
+
+@dataclass(frozen=True)
+class DemoKind(Generic[R]):
+    """A kind of estimate the demo knows: what to record and how to summarise it.
+
+    Attributes:
+        name: short name (``"soil_stiffness"``).
+        recording: the topics and message type.
+        summarise: recorded run → result.
+        plot: (result, output directory) → path of the plot written.
+        table: results of this kind → the printed table.
+    """
+
+    name: str
+    recording: Recording
+    summarise: Callable[[DemoRun], R]
+    plot: Callable[[R, Path], Path]
+    table: Callable[[Sequence[R]], str]
+
+
+def _format_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(head)]
+    fmt = " | ".join(f"{{:<{w}}}" for w in widths)
+    lines = [fmt.format(*head), "-+-".join("-" * w for w in widths)]
+    lines += [fmt.format(*row) for row in rows]
+    return "\n".join(lines)
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+# ---------------------------------------------------------------------------
+# Soil stiffness (quarter car, LRV)
+# ---------------------------------------------------------------------------
+
+
+@dataclass
+class SoilStiffnessResult:
     scenario: DemoScenario
     times: np.ndarray
     k_s: np.ndarray
@@ -91,124 +208,27 @@ class DemoResult:
         return float(t[above[-1] + 1])
 
 
-def _params_file(node_name: str, params: dict[str, Any], directory: Path) -> Path:
-    """A ROS 2 parameter file giving ``params`` to ``node_name`` under any namespace.
-
-    Passed after the vehicle's config file: for rcl, a node-specific entry of
-    a file outranks a global ``-p name:=value``, so overrides of parameters the
-    config sets per node must come as a later node-specific file.
-    """
-    import yaml
-
-    path = directory / f"{node_name}_demo.yaml"
-    path.write_text(yaml.safe_dump({f"/**/{node_name}": {"ros__parameters": params}}))
-    return path
-
-
-def run_scenario(scenario: DemoScenario, realtime_factor: float, progress: bool = True) -> DemoResult:
-    """Run one scenario live over ROS 2.
-
-    The simulator runs as its own process (``terrain-sim-node``), as on a
-    robot; the estimator node and a recorder share this process. The
-    simulator starts stepping once the estimator's subscriptions are matched.
-    """
-    import subprocess
-    import tempfile
-
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-
-    from terrain_estimation.ros.diagnostics import LEVEL_NAMES
-    from terrain_estimation.ros.nodes import make_estimator_node
-    from terrain_estimation.ros.qos import ESTIMATE_QOS
-    from terrain_msgs.msg import SoilStiffness
-    from vehicle_sim.ros.registry import get_simulator
-
-    params = dict(scenario.sim_overrides)
-    params.update(realtime_factor=realtime_factor, duration=scenario.duration, wait_for_subscribers=1)
-    tmp = Path(tempfile.mkdtemp(prefix="terrain-demo-"))
-    overrides_file = _params_file(get_simulator(scenario.vehicle).node_name, params, tmp)
-    command = [sys.executable, "-m", "vehicle_sim.ros.nodes", "--vehicle", scenario.vehicle]
-    command += ["--ros-args", "--params-file", str(overrides_file)]
-
-    context = Context()
-    rclpy.init(context=context)
-    sim = None
-    try:
-        est = make_estimator_node(scenario.vehicle, overrides={"use_sim_time": True}, context=context)
-        recorder = Node("demo_recorder", context=context)
-        ns = est.get_namespace()
-        estimates: list[Any] = []
-        truth: list[Any] = []
-        recorder.create_subscription(SoilStiffness, f"{ns}/{scenario.estimate_topic}", estimates.append, ESTIMATE_QOS)
-        recorder.create_subscription(
-            SoilStiffness, f"{ns}/ground_truth/{scenario.estimate_topic}", truth.append, ESTIMATE_QOS
-        )
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(est)
-        executor.add_node(recorder)
-        sim = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        started = time.monotonic()
-        last_report = started
-        while sim.poll() is None:
-            executor.spin_once(timeout_sec=0.05)
-            if progress and time.monotonic() - last_report > 2.0:
-                last_report = time.monotonic()
-                t_now = est.get_clock().now().nanoseconds * 1e-9
-                print(
-                    f"  ... {scenario.vehicle}: {t_now:.1f} / {scenario.duration:.0f} s simulated, "
-                    f"{len(estimates)} estimates",
-                    file=sys.stderr,
-                )
-        if sim.returncode != 0:
-            raise RuntimeError(
-                f"{scenario.vehicle} simulator failed ({sim.returncode}): {sim.stderr.read() if sim.stderr else ''}"
-            )
-        # drain what is still queued
-        drain_until = time.monotonic() + 1.0
-        while time.monotonic() < drain_until:
-            executor.spin_once(timeout_sec=0.01)
-        wall = time.monotonic() - started
-        status = est.diagnostic_status()
-        executor.shutdown()
-        for node in (est, recorder):
-            node.destroy_node()
-    finally:
-        if sim is not None and sim.poll() is None:
-            sim.terminate()
-            sim.wait(timeout=10)
-        rclpy.try_shutdown(context=context)
-
-    if not estimates:
-        raise RuntimeError(f"{scenario.vehicle}: the estimator published nothing")
-    t_est = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in estimates])
-    t_truth = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in truth])
-    k_truth = np.array([m.k_s for m in truth])
-    idx = np.clip(np.searchsorted(t_truth, t_est, side="right") - 1, 0, len(truth) - 1)
-    return DemoResult(
-        scenario=scenario,
+def _summarise_soil(run: DemoRun) -> SoilStiffnessResult:
+    t_est = run.times
+    idx = run.truth_index()
+    return SoilStiffnessResult(
+        scenario=run.scenario,
         times=t_est,
-        k_s=np.array([m.k_s for m in estimates]),
-        k_s_std=np.sqrt(np.array([m.k_s_variance for m in estimates])),
-        true_k_s=k_truth[idx],
-        terrain_class=estimates[-1].terrain_class,
-        nis=np.array([m.nis for m in estimates]),
-        diagnostic_level=LEVEL_NAMES.get(status.level, "?"),
-        diagnostic_message=status.message,
-        wall_time=wall,
+        k_s=run.estimate_field("k_s"),
+        k_s_std=np.sqrt(run.estimate_field("k_s_variance")),
+        true_k_s=run.truth_field("k_s", idx),
+        terrain_class=run.estimates[-1].terrain_class,
+        nis=run.estimate_field("nis"),
+        diagnostic_level=run.diagnostic_level,
+        diagnostic_message=run.diagnostic_message,
+        wall_time=run.wall_time,
         sim_time=float(t_est[-1]),
-        expected_estimates=round(scenario.duration * 100.0) - 1,
+        expected_estimates=round(run.scenario.duration * 100.0) - 1,
     )
 
 
-def _plot(result: DemoResult, out: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def _plot_soil(result: SoilStiffnessResult, out: Path) -> Path:
+    plt = _pyplot()
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
     t = result.times
     ax1.plot(t, result.true_k_s / 1e3, "k-", lw=1.5, label="true k_s")
@@ -239,7 +259,7 @@ def _plot(result: DemoResult, out: Path) -> Path:
     return path
 
 
-def _table(results: Sequence[DemoResult]) -> str:
+def _table_soil(results: Sequence[SoilStiffnessResult]) -> str:
     head = (
         "vehicle",
         "sim s",
@@ -276,11 +296,387 @@ def _table(results: Sequence[DemoResult]) -> str:
                 f"{r.diagnostic_level}: {r.diagnostic_message}",
             )
         )
-    widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(head)]
-    fmt = " | ".join(f"{{:<{w}}}" for w in widths)
-    lines = [fmt.format(*head), "-+-".join("-" * w for w in widths)]
-    lines += [fmt.format(*row) for row in rows]
-    return "\n".join(lines)
+    return _format_table(head, rows)
+
+
+SOIL_STIFFNESS: DemoKind[SoilStiffnessResult] = DemoKind(
+    "soil_stiffness",
+    Recording("terrain_msgs.msg.SoilStiffness", "soil_stiffness", "ground_truth/soil_stiffness"),
+    _summarise_soil,
+    _plot_soil,
+    _table_soil,
+)
+
+
+# ---------------------------------------------------------------------------
+# Skid-steer motion state
+# ---------------------------------------------------------------------------
+
+#: The rms errors leave out the start (filter initialisation, standstill to 1 s).
+SKID_STEER_SETTLE = 2.0
+#: The ICR is averaged over the steady turn (small-radius turn: yaw rate ramped over 6–8 s).
+SKID_STEER_STEADY_TURN = 10.0
+#: One estimate per IMU message.
+SKID_STEER_RATE = 100.0
+
+
+@dataclass
+class SkidSteerResult:
+    """Skid-steer estimates against ground truth, aligned by stamp (angles in rad)."""
+
+    scenario: DemoScenario
+    times: np.ndarray
+    estimate: dict[str, np.ndarray]
+    std: dict[str, np.ndarray]
+    truth: dict[str, np.ndarray]
+    icr_valid: np.ndarray
+    true_icr_valid: np.ndarray
+    fading_factor: np.ndarray
+    noise_scale: np.ndarray
+    nis_mean: float
+    nis_window: int
+    diagnostic_level: str
+    diagnostic_message: str
+    wall_time: float
+    sim_time: float
+    expected_estimates: int
+
+    def rms_error(self, name: str, start: float = SKID_STEER_SETTLE) -> float:
+        """Root-mean-square error of ``name`` over the estimates stamped from ``start``."""
+        mask = self.times >= start
+        if not np.any(mask):
+            return math.nan
+        err = self.estimate[name][mask] - self.truth[name][mask]
+        return float(np.sqrt(np.mean(err**2)))
+
+    def mean_icr(self, start: float = SKID_STEER_STEADY_TURN) -> tuple[float, float, float, float]:
+        """Mean (estimated x, y, true x, y) of the ICR (m) over valid samples from ``start``; NaN: none."""
+        steady = self.times >= start
+        est = steady & self.icr_valid
+        tru = steady & self.true_icr_valid
+
+        def mean(values: np.ndarray, mask: np.ndarray) -> float:
+            return float(np.mean(values[mask])) if np.any(mask) else math.nan
+
+        return (
+            mean(self.estimate["icr_x"], est),
+            mean(self.estimate["icr_y"], est),
+            mean(self.truth["icr_x"], tru),
+            mean(self.truth["icr_y"], tru),
+        )
+
+
+_SKID_FIELDS = ("vx", "vy", "yaw_rate", "body_sideslip", "icr_x", "icr_y")
+_SKID_VARIANCES = ("vx", "vy", "yaw_rate", "body_sideslip")
+
+
+def _summarise_skid_steer(run: DemoRun) -> SkidSteerResult:
+    t_est = run.times
+    idx = run.truth_index()
+    values = run.diagnostic_values
+    nis_mean = float(values["nis_mean"]) if "nis_mean" in values else math.nan
+    return SkidSteerResult(
+        scenario=run.scenario,
+        times=t_est,
+        estimate={name: run.estimate_field(name) for name in _SKID_FIELDS},
+        std={name: np.sqrt(run.estimate_field(f"{name}_variance")) for name in _SKID_VARIANCES},
+        truth={name: run.truth_field(name, idx) for name in _SKID_FIELDS},
+        icr_valid=run.estimate_field("icr_valid").astype(bool),
+        true_icr_valid=run.truth_field("icr_valid", idx).astype(bool),
+        fading_factor=run.estimate_field("fading_factor"),
+        noise_scale=run.estimate_field("noise_scale"),
+        nis_mean=nis_mean,
+        nis_window=int(values.get("nis_window", "0")),
+        diagnostic_level=run.diagnostic_level,
+        diagnostic_message=run.diagnostic_message,
+        wall_time=run.wall_time,
+        sim_time=float(t_est[-1]),
+        expected_estimates=round(run.scenario.duration * SKID_STEER_RATE),
+    )
+
+
+def _plot_skid_steer(result: SkidSteerResult, out: Path) -> Path:
+    plt = _pyplot()
+    fig = plt.figure(figsize=(13, 8))
+    grid = fig.add_gridspec(3, 2, width_ratios=(2.2, 1))
+    t = result.times
+    panels = (
+        ("vx", 1.0, "vx (m/s)"),
+        ("yaw_rate", 1.0, "yaw rate (rad/s)"),
+        ("body_sideslip", 180.0 / math.pi, "body sideslip β (deg)"),
+    )
+    first = None
+    for row, (name, scale, label) in enumerate(panels):
+        ax = fig.add_subplot(grid[row, 0], sharex=first)
+        first = first or ax
+        est, std = result.estimate[name] * scale, result.std[name] * scale
+        ax.plot(t, result.truth[name] * scale, "k-", lw=1.5, label="truth")
+        ax.plot(t, est, "C0-", lw=1, label="estimate (AN-STUKF)")
+        ax.fill_between(t, est - 2 * std, est + 2 * std, color="C0", alpha=0.2, label="±2σ")
+        if name == "body_sideslip":
+            # below the sideslip speed the estimate is 0 with variance π²: keep the band from hiding the truth
+            settled = t >= SKID_STEER_SETTLE
+            span = np.concatenate([result.truth[name][settled], result.estimate[name][settled]]) * scale
+            if span.size:
+                margin = max(1.0, 0.2 * float(np.ptp(span)))
+                ax.set_ylim(float(np.min(span)) - margin, float(np.max(span)) + margin)
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+        if row == 0:
+            ax.set_title(result.scenario.title)
+            ax.legend(loc="lower right")
+        if row == len(panels) - 1:
+            ax.set_xlabel("simulated time (s)")
+    ax_icr = fig.add_subplot(grid[:, 1])
+    steady = t >= SKID_STEER_STEADY_TURN
+    est_steady = result.icr_valid & steady
+    for mask, data, color, label in (
+        (result.true_icr_valid, result.truth, "k", "truth"),
+        (result.icr_valid, result.estimate, "C0", "estimate"),
+    ):
+        ax_icr.plot(
+            data["icr_x"][mask], data["icr_y"][mask], ".", color=color, ms=1.5, alpha=0.5, label=f"{label} (valid)"
+        )
+        m = mask & steady
+        if np.any(m):
+            ax_icr.plot(
+                float(np.mean(data["icr_x"][m])),
+                float(np.mean(data["icr_y"][m])),
+                "X",
+                color=color,
+                ms=10,
+                mec="white",
+                label=f"{label}: mean from {SKID_STEER_STEADY_TURN:g} s",
+            )
+    ax_icr.set_xlabel("ICR x, body frame (m)")
+    ax_icr.set_ylabel("ICR y, body frame (m; > 0: left of the vehicle)")
+    ax_icr.set_title("instantaneous centre of rotation")
+    ax_icr.grid(True, alpha=0.3)
+    ax_icr.legend(loc="upper right", fontsize="small", markerscale=2)
+    # The ICR runs off to infinity as the yaw rate falls to the validity threshold
+    # (the turn-in): frame the steady turn, 1st to 99th percentile of both traces.
+    xs = np.concatenate([result.truth["icr_x"][result.true_icr_valid & steady], result.estimate["icr_x"][est_steady]])
+    ys = np.concatenate([result.truth["icr_y"][result.true_icr_valid & steady], result.estimate["icr_y"][est_steady]])
+    if xs.size:
+        for values, set_lim in ((xs, ax_icr.set_xlim), (ys, ax_icr.set_ylim)):
+            lo, hi = (float(v) for v in np.percentile(values, (1.0, 99.0)))
+            margin = max(0.25, 0.3 * (hi - lo))
+            set_lim(lo - margin, hi + margin)
+    fig.tight_layout()
+    path = out / f"{result.scenario.vehicle}_state.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _table_skid_steer(results: Sequence[SkidSteerResult]) -> str:
+    head = (
+        "vehicle",
+        "sim s",
+        "wall s",
+        "estimates",
+        "rms vx m/s",
+        "rms vy m/s",
+        "rms yaw rate rad/s",
+        "rms sideslip deg",
+        "ICR x m est/true",
+        "ICR y m est/true",
+        "mean fading",
+        "mean noise scale",
+        "mean NIS",
+        "diagnostics",
+    )
+    rows = []
+    for r in results:
+        icr = r.mean_icr()
+        nis = "n/a" if math.isnan(r.nis_mean) else f"{r.nis_mean:.2f} (last {r.nis_window})"
+        rows.append(
+            (
+                r.scenario.vehicle,
+                f"{r.sim_time:.1f}",
+                f"{r.wall_time:.1f}",
+                f"{r.times.size}/{r.expected_estimates}",
+                f"{r.rms_error('vx'):.3f}",
+                f"{r.rms_error('vy'):.3f}",
+                f"{r.rms_error('yaw_rate'):.4f}",
+                f"{math.degrees(r.rms_error('body_sideslip')):.2f}",
+                f"{icr[0]:.2f} / {icr[2]:.2f}",
+                f"{icr[1]:.2f} / {icr[3]:.2f}",
+                f"{float(np.mean(r.fading_factor)):.3f}",
+                f"{float(np.mean(r.noise_scale)):.3f}",
+                nis,
+                f"{r.diagnostic_level}: {r.diagnostic_message}",
+            )
+        )
+    note = (
+        f"(rms errors against ground truth from {SKID_STEER_SETTLE:g} s; ICR: mean over valid estimates and truth "
+        f"from {SKID_STEER_STEADY_TURN:g} s, the steady turn; NIS: the estimator's diagnostics window, 3 dof)"
+    )
+    return _format_table(head, rows) + "\n" + note
+
+
+SKID_STEER: DemoKind[SkidSteerResult] = DemoKind(
+    "skid_steer",
+    Recording(
+        "terrain_msgs.msg.SkidSteerState",
+        "skid_steer/state",
+        "ground_truth/skid_steer/state",
+        other_sensors=(("nav_msgs.msg.Odometry", "gnss/odom"),),  # the RTK-GNSS reference
+    ),
+    _summarise_skid_steer,
+    _plot_skid_steer,
+    _table_skid_steer,
+)
+
+
+# ---------------------------------------------------------------------------
+# Scenarios and the ROS 2 run
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DemoScenario:
+    """One demo run: a vehicle, simulator overrides, how long to drive, and what to record."""
+
+    vehicle: str
+    title: str
+    duration: float
+    sim_overrides: dict[str, Any] = field(default_factory=dict)
+    kind: DemoKind[Any] = SOIL_STIFFNESS
+
+
+SCENARIOS: tuple[DemoScenario, ...] = (
+    DemoScenario(
+        "quarter_car",
+        "quarter car, ISO D, 10 m/s: Graneville loam, then Upland sandy loam after 100 m",
+        20.0,
+        {
+            "scenario.road": "D",
+            "scenario.speed": 10.0,
+            "scenario.soils": ["graneville_loam", "upland_sandy_loam"],
+            "scenario.soil_starts": [0.0, 100.0],
+        },
+    ),
+    DemoScenario(
+        "lrv",
+        "LRV, ISO G, 2 m/s, lunar regolith",
+        20.0,
+        {"scenario.road": "G", "scenario.speed": 2.0, "scenario.soils": ["lunar_regolith"]},
+    ),
+    DemoScenario(
+        "skid_steer",
+        "skid steer, small-radius turn: 5 km/h, 0.2 rad/s counter-clockwise from 8 s (R ≈ 7 m)",
+        28.0,
+        {"scenario.manoeuvre": "small_radius_turn", "scenario.duration": 28.0},
+        SKID_STEER,
+    ),
+)
+
+
+def _params_file(node_name: str, params: dict[str, Any], directory: Path) -> Path:
+    """A ROS 2 parameter file giving ``params`` to ``node_name`` under any namespace.
+
+    Passed after the vehicle's config file: for rcl, a node-specific entry of
+    a file outranks a global ``-p name:=value``, so overrides of parameters the
+    config sets per node must come as a later node-specific file.
+    """
+    import yaml
+
+    path = directory / f"{node_name}_demo.yaml"
+    path.write_text(yaml.safe_dump({f"/**/{node_name}": {"ros__parameters": params}}))
+    return path
+
+
+def run_scenario(scenario: DemoScenario, realtime_factor: float, progress: bool = True) -> DemoRun:
+    """Run one scenario live over ROS 2 and record its estimate and ground-truth topics.
+
+    The simulator runs as its own process (``terrain-sim-node``), as on a
+    robot; the estimator node and a recorder share this process. The
+    simulator starts stepping once the estimator's subscriptions are matched.
+    """
+    import subprocess
+    import tempfile
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+    from terrain_estimation.ros.diagnostics import LEVEL_NAMES
+    from terrain_estimation.ros.nodes import make_estimator_node
+    from terrain_estimation.ros.qos import ESTIMATE_QOS, SENSOR_QOS
+    from vehicle_sim.ros.registry import get_simulator
+
+    recording = scenario.kind.recording
+    msg_type = recording.message_class()
+    params = dict(scenario.sim_overrides)
+    params.update(realtime_factor=realtime_factor, duration=scenario.duration, wait_for_subscribers=1)
+    tmp = Path(tempfile.mkdtemp(prefix="terrain-demo-"))
+    overrides_file = _params_file(get_simulator(scenario.vehicle).node_name, params, tmp)
+    command = [sys.executable, "-m", "vehicle_sim.ros.nodes", "--vehicle", scenario.vehicle]
+    command += ["--ros-args", "--params-file", str(overrides_file)]
+
+    context = Context()
+    rclpy.init(context=context)
+    sim = None
+    try:
+        est = make_estimator_node(scenario.vehicle, overrides={"use_sim_time": True}, context=context)
+        recorder = Node("demo_recorder", context=context)
+        ns = est.get_namespace()
+        estimates: list[Any] = []
+        truth: list[Any] = []
+        recorder.create_subscription(msg_type, f"{ns}/{recording.estimate_topic}", estimates.append, ESTIMATE_QOS)
+        recorder.create_subscription(msg_type, f"{ns}/{recording.truth_topic}", truth.append, ESTIMATE_QOS)
+        for other_type, topic in recording.other_sensors:
+            recorder.create_subscription(_import_type(other_type), f"{ns}/{topic}", lambda _msg: None, SENSOR_QOS)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(est)
+        executor.add_node(recorder)
+        sim = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        started = time.monotonic()
+        last_report = started
+        while sim.poll() is None:
+            executor.spin_once(timeout_sec=0.05)
+            if progress and time.monotonic() - last_report > 2.0:
+                last_report = time.monotonic()
+                t_now = est.get_clock().now().nanoseconds * 1e-9
+                print(
+                    f"  ... {scenario.vehicle}: {t_now:.1f} / {scenario.duration:.0f} s simulated, "
+                    f"{len(estimates)} estimates",
+                    file=sys.stderr,
+                )
+        if sim.returncode != 0:
+            raise RuntimeError(
+                f"{scenario.vehicle} simulator failed ({sim.returncode}): {sim.stderr.read() if sim.stderr else ''}"
+            )
+        # drain what is still queued
+        drain_until = time.monotonic() + 1.0
+        while time.monotonic() < drain_until:
+            executor.spin_once(timeout_sec=0.01)
+        wall = time.monotonic() - started
+        status = est.diagnostic_status()
+        executor.shutdown()
+        for node in (est, recorder):
+            node.destroy_node()
+    finally:
+        if sim is not None and sim.poll() is None:
+            sim.terminate()
+            sim.wait(timeout=10)
+        rclpy.try_shutdown(context=context)
+
+    if not estimates:
+        raise RuntimeError(f"{scenario.vehicle}: the estimator published nothing on {recording.estimate_topic}")
+    if not truth:
+        raise RuntimeError(f"{scenario.vehicle}: no ground truth arrived on {recording.truth_topic}")
+    return DemoRun(
+        scenario=scenario,
+        estimates=estimates,
+        truth=truth,
+        diagnostic_level=LEVEL_NAMES.get(status.level, "?"),
+        diagnostic_message=status.message,
+        diagnostic_values={kv.key: kv.value for kv in status.values},
+        wall_time=wall,
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -295,12 +691,18 @@ def main(argv: Sequence[str] | None = None) -> int:
             "the 1 kHz profile topic up to about 2.5x)"
         ),
     )
-    parser.add_argument("--vehicle", action="append", help="only these vehicles (default: all)")
+    parser.add_argument(
+        "--vehicle",
+        action="append",
+        choices=[s.vehicle for s in SCENARIOS],
+        help="only these vehicles (repeatable; default: all)",
+    )
     args = parser.parse_args(argv)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    results = []
+    # results per kind, kinds in the order of their first scenario
+    by_kind: dict[str, tuple[DemoKind[Any], list[Any]]] = {}
     for scenario in SCENARIOS:
         if args.vehicle and scenario.vehicle not in args.vehicle:
             continue
@@ -309,11 +711,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{args.realtime_factor:g}x real time, estimating live over ROS 2 ...",
             file=sys.stderr,
         )
-        result = run_scenario(scenario, args.realtime_factor)
-        results.append(result)
-        print(f"  plot: {_plot(result, out)}", file=sys.stderr)
-    print()
-    print(_table(results))
+        kind = scenario.kind
+        result = kind.summarise(run_scenario(scenario, args.realtime_factor))
+        by_kind.setdefault(kind.name, (kind, []))[1].append(result)
+        print(f"  plot: {kind.plot(result, out)}", file=sys.stderr)
+    for kind, results in by_kind.values():
+        print()
+        print(kind.table(results))
     return 0
 
 
