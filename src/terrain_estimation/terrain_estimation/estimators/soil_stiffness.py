@@ -403,6 +403,11 @@ class SoilStiffnessEstimate:
             step).
         accepted: the measurement update was applied.
         state: the full state mean, in the model's state order.
+        profile_gap_ratio: the largest gap between profile samples over the
+            step divided by the median spacing of the profile buffer (≈ 1 for
+            an intact stream; well above 1 when samples were lost, e.g. a node
+            falling behind a 1 kHz profiler: the road between the steps is then
+            interpolated and k_s is biased, MODELS.md A.10).
     """
 
     t: float
@@ -417,6 +422,7 @@ class SoilStiffnessEstimate:
     nis: float
     accepted: bool
     state: tuple[float, ...] = ()
+    profile_gap_ratio: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -819,6 +825,12 @@ class SoilStiffnessEstimator:
             max_gap = max(max_gap, float(grid[-1] - pt[-1]))
         return hg, max_gap
 
+    def _profile_spacing(self) -> float:
+        """Median spacing (s) of the buffered profile samples (0 with fewer than two)."""
+        if len(self._pt) < 2:
+            return 0.0
+        return float(np.median(np.diff(np.asarray(self._pt))))
+
     def _hdot_half_window(self, t: float) -> float:
         """Half the time window (s) of the ḣ fit at ``t``; 0 without the fit.
 
@@ -926,6 +938,8 @@ class SoilStiffnessEstimator:
         n_sub = max(1, math.ceil(dt * cfg.substep_rate_hz - 1e-6))
         grid = self._t_prev + dt * np.arange(n_sub + 1) / n_sub
         hg, max_gap = self._profile_on_grid(grid)
+        spacing = self._profile_spacing()
+        gap_ratio = max_gap / spacing if spacing > 0.0 else 1.0
         u_sub = np.diff(hg) / (dt / n_sub)
         hdot_end, sigma_eps = self._road_at_measurement(t, u_sub, dt / n_sub)
         u: Any = StepInput(u_sub, hdot_end) if self._feedthrough else u_sub
@@ -1034,6 +1048,7 @@ class SoilStiffnessEstimator:
             nis=nis,
             accepted=accepted,
             state=state,
+            profile_gap_ratio=float(gap_ratio) if math.isfinite(gap_ratio) else 1.0,
         )
         self._last = est
         self._outbox.append(est)

@@ -86,6 +86,9 @@ class AdapterHealth:
         rejected: count of rejected inputs per reason (``"imu/body: non-finite"``).
         status: free text the adapter wants shown (``"converged"``).
         values: further key/values for the diagnostic.
+        warnings: conditions the adapter currently sees as degraded (each
+            turns the diagnostic WARN and is shown in its message); the
+            adapter sets and clears them.
     """
 
     updates: int = 0
@@ -95,6 +98,7 @@ class AdapterHealth:
     rejected: dict[str, int] = field(default_factory=dict)
     status: str = ""
     values: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
     def reject(self, reason: str) -> None:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
@@ -304,6 +308,9 @@ class EstimatorNode(_ParamsMixin, Node):
             if not math.isfinite(mean_nis) or mean_nis > hi or mean_nis < lo:
                 level = diag.worst(level, diag.WARN)
                 notes.append(f"innovations inconsistent (mean NIS {mean_nis:.2f} outside [{lo:.2f}, {hi:.2f}])")
+        if health.warnings:
+            level = diag.worst(level, diag.WARN)
+            notes.extend(health.warnings)
         for reason, count in health.rejected.items():
             values[f"rejected: {reason}"] = count
         values.update(health.values)

@@ -15,6 +15,7 @@ newer sample is used alone (a body-only update) and counted in diagnostics.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -252,6 +253,13 @@ def specs_for(kind: str) -> tuple[ParamSpec, ...]:
 
 PARAMETERS = specs_for("quarter_car")
 
+PROFILE_GAP_RATIO_WARN = 3.0
+"""A step whose largest profile gap exceeds this multiple of the median spacing lost samples."""
+PROFILE_GAP_WINDOW = 200
+"""Steps over which lost profile samples are counted for the diagnostic (2 s at 100 Hz)."""
+PROFILE_GAPPY_FRACTION_WARN = 0.05
+"""Diagnostics turn WARN when more than this fraction of the window's steps lost profile samples."""
+
 
 def _f(values: Mapping[str, ParamValue], name: str) -> float:
     return float(values[name])
@@ -390,6 +398,7 @@ class SoilStiffnessAdapter:
         self._body: dict[int, float] = {}
         self._wheel: dict[int, float] = {}
         self.travel_speed = math.nan
+        self._profile_gappy: deque[bool] = deque(maxlen=PROFILE_GAP_WINDOW)
 
     # -- accelerometer pairing -------------------------------------------------
     def _flush_before(self, stamp_ns: int) -> None:
@@ -448,14 +457,27 @@ class SoilStiffnessAdapter:
             h.last_update_time = e.t
             if e.accepted:
                 h.nis.append(e.nis)
+            self._profile_gappy.append(e.profile_gap_ratio > PROFILE_GAP_RATIO_WARN)
         if estimates:
             last = estimates[-1]
             c = self.estimator.counters
             h.status = f"k_s {last.k_s / 1e3:.1f} kN/m, {last.terrain_class} ({last.class_confidence:.2f})" + (
                 ", converged" if last.converged else ", converging"
             )
+            gappy = sum(self._profile_gappy)
+            n = len(self._profile_gappy)
+            h.warnings = (
+                [
+                    f"terrain/profile: {gappy} of the last {n} steps lost profile samples (gap > "
+                    f"{PROFILE_GAP_RATIO_WARN:g}x the sample spacing): the road between steps is interpolated "
+                    "and k_s biased; the node is not keeping up with the profiler, or the sensor drops samples"
+                ]
+                if gappy > PROFILE_GAPPY_FRACTION_WARN * n
+                else []
+            )
             h.values.update(
                 k_s=last.k_s,
+                profile_gappy_steps=gappy,
                 k_s_std=math.sqrt(last.k_s_variance),
                 terrain_class=last.terrain_class,
                 travel_speed=self.travel_speed,
