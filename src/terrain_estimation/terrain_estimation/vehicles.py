@@ -65,6 +65,7 @@ VEHICLES: dict[str, VehicleEntry] = {
     "skid_steer": VehicleEntry(
         "skid_steer", "/skid_steer", "skid_steer_estimator", "terrain_estimation.ros.skid_steer"
     ),
+    "rover": VehicleEntry("rover", "/rover", "rover_terrain_estimator", "terrain_estimation.ros.rover"),
 }
 
 

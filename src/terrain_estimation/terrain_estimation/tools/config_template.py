@@ -32,7 +32,12 @@ HEADER = """\
 #   offline:    terrain-estimate BAG --vehicle {name} -o OUT [--config FILE]
 """
 
-TITLES = {"quarter_car": "2-DOF quarter car on deformable soil", "lrv": "1-DOF Lunar Roving Vehicle wheel"}
+TITLES = {
+    "quarter_car": "2-DOF quarter car on deformable soil",
+    "lrv": "1-DOF Lunar Roving Vehicle wheel",
+    "skid_steer": "6-wheel skid-steered vehicle, one motor per side",
+    "rover": "Kapvik rocker-bogie rover, one side in the vertical plane",
+}
 
 
 def _yaml_value(value: Any) -> str:

@@ -55,6 +55,7 @@ SIMULATORS: dict[str, SimulatorEntry] = {
     "quarter_car": SimulatorEntry("quarter_car", "/quarter_car", "quarter_car_sim", "vehicle_sim.ros.quarter_car"),
     "lrv": SimulatorEntry("lrv", "/lrv", "quarter_car_sim", "vehicle_sim.ros.quarter_car"),
     "skid_steer": SimulatorEntry("skid_steer", "/skid_steer", "skid_steer_sim", "vehicle_sim.ros.skid_steer"),
+    "rover": SimulatorEntry("rover", "/rover", "rover_sim", "vehicle_sim.ros.rover"),
 }
 
 
