@@ -33,15 +33,12 @@ the same road and the same sensor noise (paired comparison).
 
 from __future__ import annotations
 
-import argparse
 import math
 import multiprocessing
-import os
-import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -50,6 +47,13 @@ from numpy.typing import NDArray
 
 from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimator, SoilStiffnessEstimatorConfig
 from terrain_estimation.models.quarter_car import LRVParams, QuarterCarParams
+from terrain_estimation.tools.reporting import Report, SummaryRow, reproduction_arguments
+from terrain_estimation.tools.reporting import cpu_seconds as _cpu_seconds
+from terrain_estimation.tools.reporting import format_number as _fmt
+from terrain_estimation.tools.reporting import git_revision as _git_revision
+from terrain_estimation.tools.reporting import in_window as _window
+from terrain_estimation.tools.reporting import pyplot as _plt
+from terrain_estimation.tools.reporting import summary_stats as _stats
 from vehicle_sim.plants.quarter_car import LRVVehicle, QuarterCarVehicle, Scenario, SpeedProfile, simulate
 from vehicle_sim.terrain.profiles import RoadProfile, iso8608_profile, meadow_c_standin
 from vehicle_sim.terrain.soils import SoilPath, soil_by_name
@@ -287,10 +291,6 @@ def run_one(spec: RunSpec) -> tuple[RunSpec, dict[str, Trace]]:
 # ---------------------------------------------------------------------------
 
 
-def _window(t: FloatArray, t0: float, t1: float) -> NDArray[np.bool_]:
-    return (t > t0 + 1e-9) & (t <= t1 + 1e-9)
-
-
 def rmse(trace: Trace, t0: float, t1: float) -> float:
     """√(mean e²) of the relative k_s error (%) over estimates with t0 < t ≤ t1."""
     e = trace.err[_window(trace.t, t0, t1)]
@@ -521,18 +521,6 @@ def _execute(plan: Sequence[RunSpec], jobs: int, progress: bool = True) -> Resul
 # ---------------------------------------------------------------------------
 
 
-def _stats(values: Sequence[float]) -> dict[str, float]:
-    a = np.asarray(values, dtype=float)
-    return {
-        "mean": float(np.mean(a)),
-        "std": float(np.std(a, ddof=1)) if a.size > 1 else 0.0,
-        "median": float(np.median(a)),
-        "p90": float(np.percentile(a, 90)),
-        "max": float(np.max(a)),
-        "n": float(a.size),
-    }
-
-
 def _settle_stats(runs: Sequence[dict[str, Trace]], label: str, t0: float, t1: float, thr: float) -> dict[str, float]:
     values, censored = [], 0
     for run in runs:
@@ -544,96 +532,8 @@ def _settle_stats(runs: Sequence[dict[str, Trace]], label: str, t0: float, t1: f
     return out
 
 
-def _fmt(x: float, digits: int = 2) -> str:
-    if not math.isfinite(x):
-        return "inf"
-    if x != 0.0 and (abs(x) >= 1e5 or abs(x) < 10 ** (-digits)):
-        return f"{x:.3g}"
-    return f"{x:.{digits}f}"
-
-
 def _ms(s: dict[str, float]) -> str:
     return f"{_fmt(s['mean'])} ± {_fmt(s['std'])}"
-
-
-@dataclass
-class SummaryRow:
-    """One line of the summary table."""
-
-    case: str
-    quantity: str
-    computed: float
-    paper: float
-    criterion: str
-    holds: bool | None  # None: informational, no claim
-    censored: bool = False
-
-    @property
-    def verdict(self) -> str:
-        if self.holds is None:
-            return "info"
-        if self.holds:
-            return "yes"
-        return "**no** (censored: lower bound)" if self.censored else "**no**"
-
-
-@dataclass
-class Report:
-    """Markdown pieces and summary rows gathered by the case writers."""
-
-    out: Path
-    fig_dir: Path
-    rows: list[SummaryRow] = field(default_factory=list)
-    sections: list[str] = field(default_factory=list)
-    not_reproduced: list[str] = field(default_factory=list)
-    figures: list[Path] = field(default_factory=list)
-
-    def row(
-        self,
-        case: str,
-        quantity: str,
-        computed: float,
-        paper: float,
-        criterion: Literal["<=", "<=1.5x", "<", ">=", "info"],
-        censored: bool = False,
-    ) -> bool | None:
-        """Add a summary row; ``censored``: the computed value is only a lower bound."""
-        if criterion == "<=":
-            holds: bool | None = computed <= paper
-            text = "computed ≤ paper"
-        elif criterion == "<=1.5x":
-            holds = computed <= 1.5 * paper
-            text = "computed ≤ 1.5 × paper (paper: ≈)"
-        elif criterion == "<":
-            holds = computed < paper
-            text = "computed < paper bound"
-        elif criterion == ">=":
-            holds = computed >= paper
-            text = "computed ≥ paper"
-        else:
-            holds, text = None, "—"
-        if censored and holds and criterion in ("<=", "<=1.5x", "<"):
-            holds = False  # a lower bound at or below the paper shows nothing
-        self.rows.append(SummaryRow(case, quantity, computed, paper, text, holds, censored))
-        return holds
-
-    def fig(self, name: str) -> Path:
-        path = self.fig_dir / name
-        self.figures.append(path)
-        return path
-
-    def link(self, path: Path, alt: str) -> str:
-        rel = os.path.relpath(path, self.out.parent)
-        return f"![{alt}]({rel})"
-
-
-def _plt() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 # -- case 1 -------------------------------------------------------------------
@@ -1641,35 +1541,6 @@ def _case8(rep: Report, res: Results, counts: Counts) -> None:
 # ---------------------------------------------------------------------------
 
 
-def _cpu_seconds() -> float:
-    """User + system CPU time of this process and its finished children (s)."""
-    import resource
-
-    own = resource.getrusage(resource.RUSAGE_SELF)
-    children = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
-
-
-def _git_revision() -> str:
-    try:
-        here = Path(__file__).resolve().parent
-        out = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True, text=True, timeout=10, check=True
-        )
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=here,
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=False,
-        )
-        rev = out.stdout.strip()
-        return rev + (" (working tree modified)" if dirty.stdout.strip() else "")
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
 def summary_table(rows: Sequence[SummaryRow]) -> str:
     """The summary as a Markdown table (case | quantity | computed | paper | criterion | holds?)."""
     out = ["| case | quantity | computed | paper | criterion | holds? |", "|---|---|---|---|---|---|"]
@@ -1752,19 +1623,13 @@ def _write_report(
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
-    parser = argparse.ArgumentParser(
-        prog="python -m terrain_estimation.tools.reproduce_qc", description=(__doc__ or "").splitlines()[0]
+    args, argv_list = reproduction_arguments(
+        "python -m terrain_estimation.tools.reproduce_qc",
+        (__doc__ or "").splitlines()[0],
+        argv,
+        runs_help="Monte Carlo runs of every case (default: per case)",
+        quick_help="smoke run: a few short runs of every case (< 1 min)",
     )
-    parser.add_argument("--runs", type=int, default=None, help="Monte Carlo runs of every case (default: per case)")
-    parser.add_argument("--out", default="docs/results", help="output directory (default: docs/results)")
-    parser.add_argument("--jobs", type=int, default=2, help="worker processes (default: 2)")
-    parser.add_argument("--quick", action="store_true", help="smoke run: a few short runs of every case (< 1 min)")
-    args = parser.parse_args(argv)
-    argv_list = list(sys.argv[1:] if argv is None else argv)
-    if args.runs is not None and args.runs < 1:
-        parser.error("--runs must be ≥ 1")
-    if args.jobs < 1:
-        parser.error("--jobs must be ≥ 1")
     counts = Counts.quick() if args.quick else Counts()
     if args.runs is not None:
         counts = counts.with_runs(args.runs)

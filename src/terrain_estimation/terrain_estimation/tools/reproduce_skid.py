@@ -32,7 +32,6 @@ which the report checks by comparing a digest of the truth of every run.
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import math
 import multiprocessing
@@ -48,15 +47,13 @@ from numpy.typing import NDArray
 
 from terrain_estimation.estimators.skid_steer import SkidSteerEstimator, SkidSteerEstimatorConfig
 from terrain_estimation.models.skid_steer import WHEEL_NAMES, SkidSteerParams, axle_positions
-from terrain_estimation.tools.reproduce_qc import (
-    Report,
-    _cpu_seconds,
-    _fmt,
-    _git_revision,
-    _plt,
-    _stats,
-    _window,
-)
+from terrain_estimation.tools.reporting import Claim, Report, claims_table, reproduction_arguments
+from terrain_estimation.tools.reporting import cpu_seconds as _cpu_seconds
+from terrain_estimation.tools.reporting import format_number as _fmt
+from terrain_estimation.tools.reporting import git_revision as _git_revision
+from terrain_estimation.tools.reporting import in_window as _window
+from terrain_estimation.tools.reporting import pyplot as _plt
+from terrain_estimation.tools.reporting import summary_stats as _stats
 from vehicle_sim.plants.skid_steer import (
     MANOEUVRES,
     SkidSteerEffects,
@@ -648,31 +645,6 @@ def execute(plan: Sequence[RunSpec], counts: Counts, jobs: int, progress: bool =
 # ---------------------------------------------------------------------------
 # Summary claims
 # ---------------------------------------------------------------------------
-
-
-@dataclass
-class Claim:
-    """One line of the summary table (the paper's value may be qualitative, hence text)."""
-
-    case: str
-    quantity: str
-    computed: float
-    paper: str
-    criterion: str
-    holds: bool | None  # None: informational
-
-    @property
-    def verdict(self) -> str:
-        return "info" if self.holds is None else ("yes" if self.holds else "**no**")
-
-
-def claims_table(claims: Sequence[Claim]) -> str:
-    """The summary as a Markdown table (case | quantity | computed | paper | criterion | holds?)."""
-    out = ["| case | quantity | computed | paper | criterion | holds? |", "|---|---|---|---|---|---|"]
-    for c in claims:
-        cells = [c.case, c.quantity, f"{c.computed:.4g}", c.paper, c.criterion, c.verdict]
-        out.append("| " + " | ".join(x.replace("|", "\\|") for x in cells) + " |")
-    return "\n".join(out)
 
 
 @dataclass
@@ -1476,19 +1448,13 @@ def _write_report(
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
-    parser = argparse.ArgumentParser(
-        prog="python -m terrain_estimation.tools.reproduce_skid", description=(__doc__ or "").splitlines()[0]
+    args, argv_list = reproduction_arguments(
+        "python -m terrain_estimation.tools.reproduce_skid",
+        (__doc__ or "").splitlines()[0],
+        argv,
+        runs_help="seeded runs per manoeuvre (default 20)",
+        quick_help="smoke run: one short run per case (< 1 min)",
     )
-    parser.add_argument("--runs", type=int, default=None, help="seeded runs per manoeuvre (default 20)")
-    parser.add_argument("--out", default="docs/results", help="output directory (default: docs/results)")
-    parser.add_argument("--jobs", type=int, default=2, help="worker processes (default: 2)")
-    parser.add_argument("--quick", action="store_true", help="smoke run: one short run per case (< 1 min)")
-    args = parser.parse_args(argv)
-    argv_list = list(sys.argv[1:] if argv is None else argv)
-    if args.runs is not None and args.runs < 1:
-        parser.error("--runs must be ≥ 1")
-    if args.jobs < 1:
-        parser.error("--jobs must be ≥ 1")
     counts = Counts.quick() if args.quick else Counts()
     if args.runs is not None:
         counts = counts.with_runs(args.runs)
