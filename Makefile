@@ -30,7 +30,7 @@ export OMP_NUM_THREADS ?= 1
 
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc reproduce-skid bench bags clean distclean constraints
+.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc reproduce-skid reproduce-rover bench bags clean distclean constraints
 
 setup: $(PKGS_STAMP)
 
@@ -69,13 +69,16 @@ bench: setup  ## per-step filter cost (ours vs filterpy), bag throughput, simula
 	$(PY) -m terrain_estimation.tools.bench
 
 # Long reproductions of the papers' results (not part of make test).
-reproduce: reproduce-qc
+reproduce: reproduce-qc reproduce-skid reproduce-rover
 
 reproduce-qc: setup
 	$(PY) -m terrain_estimation.tools.reproduce_qc --out docs/results --jobs 2
 
 reproduce-skid: setup
 	$(PY) -m terrain_estimation.tools.reproduce_skid --out docs/results --jobs 2
+
+reproduce-rover: setup
+	$(PY) -m terrain_estimation.tools.reproduce_rover --out docs/results --jobs 2
 
 constraints: setup
 	{ head -n 3 constraints.txt; $(PIP) freeze | grep -v -E '^(-e |terrain|vehicle)'; } > constraints.txt.new
@@ -102,3 +105,15 @@ bags: setup
 		--param scenario.manoeuvre=small_radius_turn --param seed=32
 	$(PY) -m vehicle_sim.tools.simulate --vehicle skid_steer --duration 10 -o bags/skid_steer_s_shape \
 		--param scenario.manoeuvre=s_shape --param seed=33
+	$(PY) -m vehicle_sim.tools.simulate --vehicle rover --duration 30 -o bags/rover_terrain_1 \
+		--param scenario.terrain=rolling --param seed=51
+	$(PY) -m vehicle_sim.tools.simulate --vehicle rover --duration 24 -o bags/rover_terrain_2 \
+		--param scenario.terrain=uphill --param scenario.start_x=0.3 --param seed=52
+	$(PY) -m vehicle_sim.tools.simulate --vehicle rover --duration 24 -o bags/rover_terrain_3 \
+		--param scenario.terrain=downhill --param scenario.start_x=0.3 --param seed=53
+	$(PY) -m vehicle_sim.tools.simulate --vehicle rover --duration 24 -o bags/rover_terrain_4 \
+		--param scenario.terrain=step_wide --param scenario.start_x=0.1 --param seed=54
+	$(PY) -m vehicle_sim.tools.simulate --vehicle rover --duration 24 -o bags/rover_terrain_5 \
+		--param scenario.terrain=step_medium --param scenario.start_x=0.1 --param seed=55
+	$(PY) -m vehicle_sim.tools.simulate --vehicle rover --duration 24 -o bags/rover_terrain_6 \
+		--param scenario.terrain=step_sharp --param scenario.start_x=0.1 --param seed=56

@@ -42,6 +42,9 @@ def test_bench_quick_prints_every_row(capsys, tmp_path):
         rows = [line for line in lines if line.strip().startswith(label)]
         assert rows, f"row {label!r} missing from:\n{text}"
     assert set(EXPECTED_ROWS) == set(bench.ROW_LABELS)
+    # Rocker-bogie section: every row printed, finite figures.
+    for label in bench.ROVER_ROW_LABELS:
+        assert any(line.strip().startswith(label) for line in lines), f"rover row {label!r} missing from:\n{text}"
     assert "nan" not in text.lower()
 
     figures = json.loads(out_json.read_text())
@@ -61,3 +64,9 @@ def test_bench_quick_prints_every_row(capsys, tmp_path):
     bags = {r["row"]: r for r in figures["throughput"]}
     assert bags["bag quarter_car_graneville_iso_d_10ms"]["sim_s"] == pytest.approx(4.0, abs=0.02)
     assert 0.0 < bags["core quarter_car"]["filter_share"] <= 1.0
+    rover = figures["rover"]
+    assert [r["filter"] for r in rover["filters"]] == ["rover E1", "rover E2", "rover E3"]
+    for r in rover["filters"]:
+        assert r["steps"] > 0 and math.isfinite(r["median_us"]) and r["median_us"] > 0, r
+    for r in rover["throughput"] + rover["simulator"]:
+        assert math.isfinite(r["x_real_time"]) and r["x_real_time"] > 0 and r["steps"] > 0, r

@@ -32,7 +32,15 @@ One run prints, side by side (``make bench``):
    step is timed by a proxy around ``filter.step``. The same runs give the
    estimator's throughput over the drive as a multiple of real time, and the
    skid-steer simulator's own speed.
-5. **Machine**: CPU count and load average (other processes on the CPUs
+5. **Rocker-bogie rover** ([RB], MODELS.md Part C): per-step time of
+   Estimator 1 (UKF, 22 states) and of Estimator 2 (two-axis load cells) /
+   3 (single-axis), 9 states each, inside a
+   :class:`~terrain_estimation.estimators.rover.RoverTerrainEstimator` fed a
+   simulated drive over Fig. 10's terrain 1 (50 Hz sensors, 5 Hz steps; the
+   filter calls are timed by a proxy, keyed by the model they run); the
+   estimators' throughput as a multiple of real time; and the rover simulator
+   with the full Wong–Reece soil model and with its 4th-order surrogate.
+6. **Machine**: CPU count and load average (other processes on the CPUs
    preempt long steps first, so a p90 far above the median usually means a
    busy machine), Python, numpy, ``OPENBLAS_NUM_THREADS`` (``make`` sets it to
    1; a threaded BLAS only adds stalls on these 5 × 5 matrices).
@@ -58,7 +66,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ROW_LABELS", "SKID_ROW_LABELS", "BenchConfig", "main", "run_bench", "format_report"]
+__all__ = ["ROW_LABELS", "SKID_ROW_LABELS", "ROVER_ROW_LABELS", "BenchConfig", "main", "run_bench", "format_report"]
 
 DT = 0.01  # filter step (s): 100 Hz, the estimator's rate
 SUBSTEPS = 10  # 1 kHz road sub-steps per step (MODELS.md A.10)
@@ -90,6 +98,19 @@ SKID_ROW_LABELS: tuple[str, ...] = (
     *(f"skid {label}" for label, _ in SKID_FILTERS),
     *(f"core skid_steer {name}" for _, name in SKID_FILTERS),
     "simulate skid_steer",
+)
+
+ROVER_VARIANTS: tuple[tuple[str, int], ...] = (("E1+E2", 2), ("E1+E3", 1))
+ROVER_TERRAIN = "rolling"  # Fig. 10 terrain 1
+ROVER_TERRAMECHANICS: tuple[str, ...] = ("surrogate", "wong_reece")
+
+#: Row labels of the rover section (filter steps, estimator throughput, simulator).
+ROVER_ROW_LABELS: tuple[str, ...] = (
+    "rover E1",
+    "rover E2",
+    "rover E3",
+    *(f"core rover {label}" for label, _ in ROVER_VARIANTS),
+    *(f"simulate rover {name}" for name in ROVER_TERRAMECHANICS),
 )
 
 
@@ -522,6 +543,146 @@ def bench_skid(cfg: BenchConfig) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------
+# 5. Rocker-bogie rover
+# ---------------------------------------------------------------------------
+
+
+class _TimedRoverFilter:
+    """Delegates to the UKF both rover estimators share; times each call, keyed by the model it runs."""
+
+    def __init__(self, inner: Any, general_model: Any) -> None:
+        self.inner = inner
+        self.general_model = general_model
+        self.ns: dict[str, list[int]] = {"general": [], "wheel_force": []}
+        self._pending: dict[str, int] = {"general": 0, "wheel_force": 0}
+
+    def initial_state(self, x0: Any, P0: Any) -> Any:  # noqa: N803
+        return self.inner.initial_state(x0, P0)
+
+    def _key(self, model: Any) -> str:
+        return "general" if model is self.general_model else "wheel_force"
+
+    def predict(self, state: Any, model: Any, *args: Any, **kwargs: Any) -> Any:
+        t0 = time.perf_counter_ns()
+        try:
+            return self.inner.predict(state, model, *args, **kwargs)
+        finally:
+            self._pending[self._key(model)] = time.perf_counter_ns() - t0
+
+    def update(self, state: Any, y: Any, model: Any, *args: Any, **kwargs: Any) -> Any:
+        t0 = time.perf_counter_ns()
+        key = self._key(model)
+        try:
+            return self.inner.update(state, y, model, *args, **kwargs)
+        finally:
+            # One step of an estimator = its predict + its update.
+            self.ns[key].append(self._pending[key] + time.perf_counter_ns() - t0)
+            self._pending[key] = 0
+
+
+def _drive_rover(duration: float, seed: int, terramechanics: str = "surrogate") -> Any:
+    """Kapvik over Fig. 10's terrain 1 for ``duration`` s (Table IV sensor noise)."""
+    from vehicle_sim.plants.rover import RoverScenario, simulate_rover
+
+    return simulate_rover(
+        RoverScenario(terrain=ROVER_TERRAIN, duration=duration, seed=seed, terramechanics=terramechanics)  # type: ignore[arg-type]
+    )
+
+
+def bench_rover(cfg: BenchConfig) -> dict[str, Any]:
+    """Estimator 1 and 2/3 per-step time, estimator throughput and simulator speed of the rocker-bogie rover."""
+    from terrain_estimation.estimators.rover import RoverEstimatorConfig, RoverTerrainEstimator
+    from vehicle_sim.terrain.terramechanics_surrogate import terramechanics_surrogate
+
+    terramechanics_surrogate()  # untimed: the surrogate's one-off fit
+    simulator: list[dict[str, Any]] = []
+    run = None
+    for name in ROVER_TERRAMECHANICS:
+        _drive_rover(0.1, cfg.seed, name)  # untimed: imports, caches
+        t0 = time.perf_counter()
+        result = _drive_rover(cfg.drive_s, cfg.seed, name)
+        wall = time.perf_counter() - t0
+        simulator.append(
+            {
+                "row": f"simulate rover {name}",
+                "vehicle": "rover",
+                "sim_s": cfg.drive_s,
+                "wall_s": wall,
+                "x_real_time": cfg.drive_s / wall if wall > 0 else math.inf,
+                "steps": int(result.time.size),
+                "us_per_step": 1e6 * wall / result.time.size,
+            }
+        )
+        if name == "surrogate":
+            run = result
+    assert run is not None
+    # The same samples for every variant, as plain lists (time the estimator, not numpy indexing).
+    s = run.sensors
+    ts = run.time.tolist()
+    acc, rate, bogie = s.acceleration.tolist(), s.pitch_rate.tolist(), s.bogie_angle.tolist()
+    wheel, effort, speed = s.wheel_angle.tolist(), s.effort.tolist(), s.forward_velocity.tolist()
+    axial, perp = s.load_axial.tolist(), s.load_perpendicular.tolist()
+    warmup = min(5, max(0, len(ts) // 100))  # first steps of each repetition: caches, lazy imports
+    filters: dict[str, list[int]] = {"E1": [], "E2": [], "E3": []}
+    throughput: list[dict[str, Any]] = []
+    for label, axes in ROVER_VARIANTS:
+        walls, filter_ns, steps = [], 0, 0
+        for _ in range(max(1, cfg.repeats)):
+            est = RoverTerrainEstimator(RoverEstimatorConfig(load_cell_axes=axes))
+            timed = _TimedRoverFilter(est.filter, est.general_model)
+            est.filter = timed  # type: ignore[assignment]
+            start = time.perf_counter()
+            for k, t in enumerate(ts):
+                est.add_imu(t, acc[k][0], acc[k][1], rate[k])
+                est.add_joint_state(t, bogie[k], wheel[k], effort[k])
+                est.add_velocimeter(t, speed[k])
+                est.add_load_cells(t, axial[k], perp[k] if axes == 2 else None)
+                est.drain_estimates()
+            walls.append(time.perf_counter() - start)
+            steps = est.counters.steps + est.counters.initialisations
+            filter_ns += sum(timed.ns["general"]) + sum(timed.ns["wheel_force"])
+            if axes == 2:
+                filters["E1"] += timed.ns["general"][warmup:]
+            filters["E2" if axes == 2 else "E3"] += timed.ns["wheel_force"][warmup:]
+        wall = float(np.median(walls))
+        total_wall = float(np.sum(walls))
+        throughput.append(
+            {
+                "row": f"core rover {label}",
+                "vehicle": "rover",
+                "sim_s": cfg.drive_s,
+                "wall_s": wall,
+                "x_real_time": cfg.drive_s / wall if wall > 0 else math.inf,
+                "steps": steps,
+                "us_per_step": 1e6 * wall / steps if steps else math.nan,
+                "filter_us_per_step": 1e-3 * filter_ns / (steps * len(walls)) if steps else math.nan,
+                "filter_share": 1e-9 * filter_ns / total_wall if total_wall > 0 else math.nan,
+            }
+        )
+    states = {
+        "E1": "UKF, 22 states, 11 measurements",
+        "E2": "UKF, 9 states, two-axis cells",
+        "E3": "UKF, 9 states, single-axis cells",
+    }
+    rows: list[dict[str, Any]] = []
+    for name, ns in filters.items():
+        med, p90 = _percentiles_us(ns) if ns else (math.nan, math.nan)
+        rows.append(
+            {"filter": f"rover {name}", "model": states[name], "median_us": med, "p90_us": p90, "steps": len(ns)}
+        )
+    e1 = float(rows[0]["median_us"])
+    for r in rows:
+        r["ratio_to_e1"] = float(r["median_us"]) / e1 if e1 > 0.0 and math.isfinite(e1) else math.nan
+    return {
+        "terrain": ROVER_TERRAIN,
+        "duration_s": cfg.drive_s,
+        "filters": rows,
+        "throughput": throughput,
+        "simulator": simulator,
+    }
+
+
+# ---------------------------------------------------------------------------
 # Report
 # ---------------------------------------------------------------------------
 
@@ -540,6 +701,7 @@ def run_bench(cfg: BenchConfig, bags_dir: Path = BAGS_DIR) -> dict[str, Any]:
     out["throughput"] = throughput
     out["simulator"] = [sim_qc, sim_lrv]
     out["skid_steer"] = bench_skid(cfg)
+    out["rover"] = bench_rover(cfg)
     return out
 
 
@@ -594,6 +756,8 @@ def format_report(figures: dict[str, Any]) -> str:
         )
     if "skid_steer" in figures:
         lines += ["", *_format_skid(figures["skid_steer"], cfg)]
+    if "rover" in figures:
+        lines += ["", *_format_rover(figures["rover"])]
     return "\n".join(lines)
 
 
@@ -633,12 +797,48 @@ def _format_skid(skid: dict[str, Any], cfg: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _format_rover(rover: dict[str, Any]) -> list[str]:
+    """The rocker-bogie section of the readable table."""
+    lines = [
+        f"Rover filter steps (predict + update inside RoverTerrainEstimator, 5 Hz), terrain {rover['terrain']} "
+        f"({rover['duration_s']:.1f} s simulated, the same samples for both variants)",
+        f"  {'filter':<22}{'median µs':>11}{'p90 µs':>10}{'× E1':>11}{'steps':>8}  model",
+    ]
+    for r in rover["filters"]:
+        lines.append(
+            f"  {r['filter']:<22}{r['median_us']:>11.1f}{r['p90_us']:>10.1f}{r['ratio_to_e1']:>11.2f}"
+            f"{r['steps']:>8d}  {r['model']}"
+        )
+    lines += [
+        "",
+        "Rover estimator throughput (RoverTerrainEstimator fed the simulated run at 50 Hz; × real time)",
+        f"  {'what':<44}{'sim s':>7}{'wall s':>9}{'× real time':>13}{'µs/step':>10}{'filter µs/step':>16}",
+    ]
+    for r in rover["throughput"]:
+        filt = f"{r['filter_us_per_step']:.0f} ({100 * r['filter_share']:.0f} %)"
+        lines.append(
+            f"  {r['row']:<44}{r['sim_s']:>7.2f}{r['wall_s']:>9.3f}{r['x_real_time']:>13.1f}"
+            f"{r['us_per_step']:>10.0f}{filt:>16}"
+        )
+    lines += [
+        "",
+        "Rover simulator (simulate_rover(), constrained multibody + soil, RK4 ≤ 2 ms, 50 Hz control)",
+        f"  {'what':<44}{'sim s':>7}{'wall s':>9}{'× real time':>13}{'µs/step':>10}",
+    ]
+    for r in rover["simulator"]:
+        lines.append(
+            f"  {r['row']:<44}{r['sim_s']:>7.2f}{r['wall_s']:>9.3f}{r['x_real_time']:>13.1f}{r['us_per_step']:>10.0f}"
+        )
+    return lines
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="terrain-bench",
         description=(
             "Time the filters, the estimator (core and over the recorded bags) and the simulator; "
-            "and the skid-steer UKF / STUKF / AN-STUKF, estimator and simulator."
+            "the skid-steer UKF / STUKF / AN-STUKF, estimator and simulator; and the rover's Estimators 1–3, "
+            "estimator and simulator (full Wong–Reece and surrogate)."
         ),
     )
     parser.add_argument("--quick", action="store_true", help="short smoke run (few steps, 2 s drives)")
