@@ -40,7 +40,12 @@ def topic_name(namespace: str, relative: str) -> str:
 
 
 def numeric_fields(msg: Any, prefix: str = "") -> dict[str, float]:
-    """Flat ``{field path: value}`` of the numeric scalar fields of a message."""
+    """Flat ``{field path: value}`` of the numeric scalar fields of a message.
+
+    Nested messages give ``outer.inner`` paths and arrays of messages
+    ``wheels[0].slip`` (the rover's ``WheelTerrainArray``); numeric arrays
+    and the header are left out.
+    """
     out: dict[str, float] = {}
     for name in getattr(msg, "get_fields_and_field_types", dict)().keys():
         value = getattr(msg, name)
@@ -51,6 +56,10 @@ def numeric_fields(msg: Any, prefix: str = "") -> dict[str, float]:
             out[path] = float(value)
         elif hasattr(value, "get_fields_and_field_types") and name != "header":
             out.update(numeric_fields(value, f"{path}."))
+        elif isinstance(value, (list, tuple)):
+            for i, item in enumerate(value):
+                if hasattr(item, "get_fields_and_field_types"):
+                    out.update(numeric_fields(item, f"{path}[{i}]."))
     return out
 
 
