@@ -14,12 +14,28 @@ Afterwards it prints one table per kind of estimate and writes plots under
 * skid-steer motion state: rms error of vx, vy, yaw rate and body sideslip
   against ground truth, the instantaneous centre of rotation (ICR) over the
   steady turn, the adaptive filter's fading factor and noise scale, the
-  innovation consistency and diagnostic level from the node's diagnostics.
+  innovation consistency and diagnostic level from the node's diagnostics;
+* rocker-bogie wheel terrain (the Kapvik rover, terrain 1): rms error of each
+  wheel's slip, normal load W, drawbar pull DP and resistive torque τ_R
+  against ground truth (mean over the rear, middle and front wheel), the
+  online terrain models (``terrain_model``) received and how well the last
+  one's DP(W, i) predicts the true DP inside its validity region, the
+  innovation consistency and diagnostic level; the plot shows every wheel's W
+  and DP with their ±2σ band against the truth.
 
 Each :class:`DemoScenario` names its :class:`DemoKind`: what to record
-(:class:`Recording`: message type, estimate topic, ground-truth topic) and how
-to summarise, plot and tabulate it. :func:`run_scenario` does the ROS 2 part
-the same way for every kind.
+(:class:`Recording`: message type, estimate topic, ground-truth topic, other
+estimator outputs such as the rover's terrain models) and how to summarise,
+plot and tabulate it. :func:`run_scenario` does the ROS 2 part the same way
+for every kind.
+
+A scenario also sets its real-time factor, the simulator's pace at most: 1
+for all but the rover, which drives 40 s at 4x real time. Its estimator runs
+at 5 Hz on 50 Hz sensors and keeps up with tens of times real time; the
+simulator itself manages about 4.7x on an idle core
+(``docs/results/rover.md``), so on a busy machine it runs slower (the
+40 s took 18-33 s on a shared 2-core machine) and no estimate is lost.
+``--realtime-factor`` runs every scenario at one factor instead.
 """
 
 from __future__ import annotations
@@ -37,6 +53,9 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
+from terrain_estimation.models.rover import WHEELS
+from terrain_estimation.models.terrain_response import PolynomialModel2D, ValidityRegion
+
 __all__ = [
     "Recording",
     "DemoRun",
@@ -44,8 +63,10 @@ __all__ = [
     "DemoScenario",
     "SoilStiffnessResult",
     "SkidSteerResult",
+    "RoverResult",
     "SOIL_STIFFNESS",
     "SKID_STEER",
+    "ROVER",
     "SCENARIOS",
     "run_scenario",
     "main",
@@ -70,12 +91,16 @@ class Recording:
             does not subscribe to: the simulator starts only when every sensor
             topic has a subscriber, so the recorder subscribes to these (and
             drops what arrives).
+        other_estimates: ``(msg_type, topic)`` of further estimator outputs to
+            record (the rover's terrain models), kept in
+            :attr:`DemoRun.other_estimates` by topic.
     """
 
     msg_type: str
     estimate_topic: str
     truth_topic: str
     other_sensors: tuple[tuple[str, str], ...] = ()
+    other_estimates: tuple[tuple[str, str], ...] = ()
 
     def message_class(self) -> type:
         return _import_type(self.msg_type)
@@ -103,6 +128,7 @@ class DemoRun:
         diagnostic_message: its message.
         diagnostic_values: its key/values (as published: strings).
         wall_time: wall-clock seconds from starting the simulator to the end of recording.
+        other_estimates: messages of each of :attr:`Recording.other_estimates`, by topic, in arrival order.
     """
 
     scenario: DemoScenario
@@ -112,11 +138,23 @@ class DemoRun:
     diagnostic_message: str
     diagnostic_values: dict[str, str]
     wall_time: float
+    other_estimates: dict[str, list[Any]] = field(default_factory=dict)
 
     @property
     def times(self) -> np.ndarray:
         """Estimate stamps (s)."""
         return _stamps_ns(self.estimates) * 1e-9
+
+    @property
+    def truth_times(self) -> np.ndarray:
+        """Ground-truth stamps (s)."""
+        return _stamps_ns(self.truth) * 1e-9
+
+    def nis(self) -> tuple[float, int]:
+        """Mean NIS over the estimator's diagnostics window and the window's length (NaN, 0: not reported)."""
+        values = self.diagnostic_values
+        mean = float(values["nis_mean"]) if "nis_mean" in values else math.nan
+        return mean, int(values.get("nis_window", "0"))
 
     def truth_index(self) -> np.ndarray:
         """For each estimate, the index of the newest ground truth stamped at or before it."""
@@ -152,6 +190,17 @@ class DemoKind(Generic[R]):
     summarise: Callable[[DemoRun], R]
     plot: Callable[[R, Path], Path]
     table: Callable[[Sequence[R]], str]
+
+
+def _rms(error: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Root-mean-square of ``error`` over the rows where ``mask`` holds, per column (NaN: no row)."""
+    if not np.any(mask):
+        return np.full(error.shape[1:], math.nan)
+    return np.asarray(np.sqrt(np.mean(error[mask] ** 2, axis=0)))
+
+
+def _format_nis(mean: float, window: int) -> str:
+    return "n/a" if math.isnan(mean) else f"{mean:.2f} (last {window})"
 
 
 def _format_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -343,11 +392,7 @@ class SkidSteerResult:
 
     def rms_error(self, name: str, start: float = SKID_STEER_SETTLE) -> float:
         """Root-mean-square error of ``name`` over the estimates stamped from ``start``."""
-        mask = self.times >= start
-        if not np.any(mask):
-            return math.nan
-        err = self.estimate[name][mask] - self.truth[name][mask]
-        return float(np.sqrt(np.mean(err**2)))
+        return float(_rms(self.estimate[name] - self.truth[name], self.times >= start))
 
     def mean_icr(self, start: float = SKID_STEER_STEADY_TURN) -> tuple[float, float, float, float]:
         """Mean (estimated x, y, true x, y) of the ICR (m) over valid samples from ``start``; NaN: none."""
@@ -373,8 +418,7 @@ _SKID_VARIANCES = ("vx", "vy", "yaw_rate", "body_sideslip")
 def _summarise_skid_steer(run: DemoRun) -> SkidSteerResult:
     t_est = run.times
     idx = run.truth_index()
-    values = run.diagnostic_values
-    nis_mean = float(values["nis_mean"]) if "nis_mean" in values else math.nan
+    nis_mean, nis_window = run.nis()
     return SkidSteerResult(
         scenario=run.scenario,
         times=t_est,
@@ -386,7 +430,7 @@ def _summarise_skid_steer(run: DemoRun) -> SkidSteerResult:
         fading_factor=run.estimate_field("fading_factor"),
         noise_scale=run.estimate_field("noise_scale"),
         nis_mean=nis_mean,
-        nis_window=int(values.get("nis_window", "0")),
+        nis_window=nis_window,
         diagnostic_level=run.diagnostic_level,
         diagnostic_message=run.diagnostic_message,
         wall_time=run.wall_time,
@@ -489,7 +533,6 @@ def _table_skid_steer(results: Sequence[SkidSteerResult]) -> str:
     rows = []
     for r in results:
         icr = r.mean_icr()
-        nis = "n/a" if math.isnan(r.nis_mean) else f"{r.nis_mean:.2f} (last {r.nis_window})"
         rows.append(
             (
                 r.scenario.vehicle,
@@ -504,7 +547,7 @@ def _table_skid_steer(results: Sequence[SkidSteerResult]) -> str:
                 f"{icr[1]:.2f} / {icr[3]:.2f}",
                 f"{float(np.mean(r.fading_factor)):.3f}",
                 f"{float(np.mean(r.noise_scale)):.3f}",
-                nis,
+                _format_nis(r.nis_mean, r.nis_window),
                 f"{r.diagnostic_level}: {r.diagnostic_message}",
             )
         )
@@ -530,19 +573,225 @@ SKID_STEER: DemoKind[SkidSteerResult] = DemoKind(
 
 
 # ---------------------------------------------------------------------------
+# Rocker-bogie wheel terrain (rover)
+# ---------------------------------------------------------------------------
+
+#: The rms errors leave out the filters' initialisation (as bags/expectations.yaml's settle_time).
+ROVER_SETTLE = 2.0
+#: One estimate per estimator step (estimator.rate).
+ROVER_RATE = 5.0
+#: The rover's online terrain-response models, recorded beside its wheel_terrain estimates.
+ROVER_MODEL_TOPIC = "terrain_model"
+#: Tabulated per wheel; W and DP are plotted.
+_ROVER_QUANTITIES = ("slip", "normal_load", "drawbar_pull", "resistive_torque")
+
+
+def _wheel_field(messages: Sequence[Any], name: str) -> np.ndarray:
+    """``name`` of each wheel of WheelTerrainArray ``messages``: shape (messages, 3), in :data:`WHEELS` order."""
+    rows = []
+    for m in messages:
+        by_name = {w.wheel: w for w in m.wheels}
+        rows.append([getattr(by_name[wheel], name) for wheel in WHEELS])
+    return np.array(rows, dtype=float).reshape(len(rows), len(WHEELS))
+
+
+@dataclass
+class RoverResult:
+    """Wheel-terrain estimates against ground truth; per-wheel arrays are (samples, 3), wheels rear, middle, front.
+
+    Attributes:
+        times: estimate stamps (s).
+        estimate, std, truth: per quantity, the estimate, its σ and the ground
+            truth at the estimates (the newest stamped at or before each).
+        truth_times, truth_series: every ground-truth sample (50 Hz).
+        model_times: stamps of the terrain models received (s).
+        model_dp_rms: rms of the last model's DP(W, i) against the true DP at
+            every ground-truth (i, W) inside its validity region (NaN: no model
+            or no truth inside).
+        model_coverage: share of the ground-truth (i, W) samples inside that region.
+    """
+
+    scenario: DemoScenario
+    times: np.ndarray
+    estimate: dict[str, np.ndarray]
+    std: dict[str, np.ndarray]
+    truth: dict[str, np.ndarray]
+    truth_times: np.ndarray
+    truth_series: dict[str, np.ndarray]
+    model_times: np.ndarray
+    model_dp_rms: float
+    model_coverage: float
+    nis_mean: float
+    nis_window: int
+    diagnostic_level: str
+    diagnostic_message: str
+    wall_time: float
+    sim_time: float
+    expected_estimates: int
+
+    def rms_error(self, name: str, start: float = ROVER_SETTLE) -> np.ndarray:
+        """Root-mean-square error of ``name`` per wheel over the estimates stamped from ``start``."""
+        return _rms(self.estimate[name] - self.truth[name], self.times >= start)
+
+
+def _model_dp_error(model: Any, slip: np.ndarray, load: np.ndarray, pull: np.ndarray) -> tuple[float, float]:
+    """(rms of a TerrainResponseModel's DP against ``pull`` inside its validity region, share of samples inside)."""
+    region = ValidityRegion(
+        slip_min=model.slip_min, slip_max=model.slip_max, load_min=model.load_min, load_max=model.load_max
+    )
+    inside = region.contains(slip, load)
+    if not np.any(inside):
+        return math.nan, 0.0
+    dp = PolynomialModel2D.from_coefficients(model.dp_coefficients)
+    return dp.residual_rms(slip[inside], load[inside], pull[inside]), float(np.mean(inside))
+
+
+def _summarise_rover(run: DemoRun) -> RoverResult:
+    t_est = run.times
+    idx = run.truth_index()
+    truth_series = {name: _wheel_field(run.truth, name) for name in _ROVER_QUANTITIES}
+    models = run.other_estimates.get(ROVER_MODEL_TOPIC, [])
+    model_dp_rms, model_coverage = math.nan, 0.0
+    if models:
+        model_dp_rms, model_coverage = _model_dp_error(
+            models[-1],
+            truth_series["slip"].ravel(),
+            truth_series["normal_load"].ravel(),
+            truth_series["drawbar_pull"].ravel(),
+        )
+    nis_mean, nis_window = run.nis()
+    return RoverResult(
+        scenario=run.scenario,
+        times=t_est,
+        estimate={name: _wheel_field(run.estimates, name) for name in _ROVER_QUANTITIES},
+        std={name: np.sqrt(_wheel_field(run.estimates, f"{name}_variance")) for name in _ROVER_QUANTITIES},
+        truth={name: values[idx] for name, values in truth_series.items()},
+        truth_times=run.truth_times,
+        truth_series=truth_series,
+        model_times=_stamps_ns(models) * 1e-9,
+        model_dp_rms=model_dp_rms,
+        model_coverage=model_coverage,
+        nis_mean=nis_mean,
+        nis_window=nis_window,
+        diagnostic_level=run.diagnostic_level,
+        diagnostic_message=run.diagnostic_message,
+        wall_time=run.wall_time,
+        sim_time=float(t_est[-1]),
+        # a step closes each 1/rate window after the first sample: none at t = 0
+        expected_estimates=round(run.scenario.duration * ROVER_RATE) - 1,
+    )
+
+
+def _plot_rover(result: RoverResult, out: Path) -> Path:
+    plt = _pyplot()
+    panels = (("normal_load", "W (N)"), ("drawbar_pull", "DP (N)"))
+    # y not shared: each wheel's W varies by a few N about a different mean
+    fig, axes = plt.subplots(len(panels), len(WHEELS), figsize=(14, 6.5), sharex=True, squeeze=False)
+    t = result.times
+    for row, (name, label) in enumerate(panels):
+        for col, wheel in enumerate(WHEELS):
+            ax = axes[row, col]
+            est, std = result.estimate[name][:, col], result.std[name][:, col]
+            ax.plot(result.truth_times, result.truth_series[name][:, col], "k-", lw=1.2, label="truth")
+            ax.plot(t, est, "C0-", lw=1, label="estimate (UKF)")
+            ax.fill_between(t, est - 2 * std, est + 2 * std, color="C0", alpha=0.2, label="±2σ")
+            if name == "drawbar_pull":  # the terrain models fit DP(W, i) (and τ_R): mark their stamps
+                for k, t_model in enumerate(result.model_times):
+                    ax.axvline(t_model, color="C2", lw=0.6, alpha=0.5, label="terrain model" if k == 0 else None)
+            ax.grid(True, alpha=0.3)
+            if row == 0:
+                ax.set_title(f"{wheel} wheel")
+            if col == 0:
+                ax.set_ylabel(label)
+            if row == len(panels) - 1:
+                ax.set_xlabel("simulated time (s)")
+    axes[-1, 0].legend(loc="best", fontsize="small")
+    fig.suptitle(result.scenario.title)
+    fig.tight_layout()
+    path = out / f"{result.scenario.vehicle}_wheel_terrain.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _table_rover(results: Sequence[RoverResult]) -> str:
+    head = (
+        "vehicle",
+        "sim s",
+        "wall s",
+        "estimates",
+        "rms slip",
+        "rms W N",
+        "rms DP N",
+        "rms τ_R N·m",
+        "models (first s)",
+        "last model DP rms N (truth in region)",
+        "mean NIS",
+        "diagnostics",
+    )
+    rows = []
+    for r in results:
+        rms = {name: float(np.mean(r.rms_error(name))) for name in _ROVER_QUANTITIES}
+        models = f"{r.model_times.size}" + (f" ({r.model_times[0]:.1f})" if r.model_times.size else "")
+        model_dp = "n/a" if math.isnan(r.model_dp_rms) else f"{r.model_dp_rms:.2f} ({100 * r.model_coverage:.0f} %)"
+        rows.append(
+            (
+                r.scenario.vehicle,
+                f"{r.sim_time:.1f}",
+                f"{r.wall_time:.1f}",
+                f"{r.times.size}/{r.expected_estimates}",
+                f"{rms['slip']:.4f}",
+                f"{rms['normal_load']:.3f}",
+                f"{rms['drawbar_pull']:.3f}",
+                f"{rms['resistive_torque']:.5f}",
+                models,
+                model_dp,
+                _format_nis(r.nis_mean, r.nis_window),
+                f"{r.diagnostic_level}: {r.diagnostic_message}",
+            )
+        )
+    note = (
+        f"(rms errors against ground truth from {ROVER_SETTLE:g} s, mean of the rear, middle and front wheel's; "
+        "models: terrain_model messages received, stamp of the first; last model: its DP(W, i) against the true DP "
+        "at every ground-truth (i, W) inside its validity region, in brackets the share of the truth inside; "
+        "NIS: both filters summed, 20 dof, the estimator's diagnostics window)"
+    )
+    return _format_table(head, rows) + "\n" + note
+
+
+ROVER: DemoKind[RoverResult] = DemoKind(
+    "rover",
+    Recording(
+        "terrain_msgs.msg.WheelTerrainArray",
+        "wheel_terrain",
+        "ground_truth/wheel_terrain",
+        other_estimates=(("terrain_msgs.msg.TerrainResponseModel", ROVER_MODEL_TOPIC),),
+    ),
+    _summarise_rover,
+    _plot_rover,
+    _table_rover,
+)
+
+
+# ---------------------------------------------------------------------------
 # Scenarios and the ROS 2 run
 # ---------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
 class DemoScenario:
-    """One demo run: a vehicle, simulator overrides, how long to drive, and what to record."""
+    """One demo run: a vehicle, simulator overrides, how long to drive, what to record, and how fast.
+
+    ``realtime_factor``: simulated seconds per wall second, unless the demo
+    is given one for every scenario (``--realtime-factor``).
+    """
 
     vehicle: str
     title: str
     duration: float
     sim_overrides: dict[str, Any] = field(default_factory=dict)
     kind: DemoKind[Any] = SOIL_STIFFNESS
+    realtime_factor: float = 1.0
 
 
 SCENARIOS: tuple[DemoScenario, ...] = (
@@ -570,6 +819,16 @@ SCENARIOS: tuple[DemoScenario, ...] = (
         {"scenario.manoeuvre": "small_radius_turn", "scenario.duration": 28.0},
         SKID_STEER,
     ),
+    DemoScenario(
+        "rover",
+        "Kapvik rocker-bogie, terrain 1 (rolling), 2 cm/s: Estimators 1 + 2, online terrain model",
+        40.0,
+        # the noise seed of bags/rover_terrain_1 (the same run, 10 s longer)
+        {"scenario.terrain": "rolling", "seed": 51},
+        ROVER,
+        # 200 simulator steps (50 Hz sensors), 20 estimates a second; the simulator's limit is about 4.7x
+        realtime_factor=4.0,
+    ),
 )
 
 
@@ -587,12 +846,13 @@ def _params_file(node_name: str, params: dict[str, Any], directory: Path) -> Pat
     return path
 
 
-def run_scenario(scenario: DemoScenario, realtime_factor: float, progress: bool = True) -> DemoRun:
-    """Run one scenario live over ROS 2 and record its estimate and ground-truth topics.
+def run_scenario(scenario: DemoScenario, realtime_factor: float | None = None, progress: bool = True) -> DemoRun:
+    """Run one scenario live over ROS 2 and record its estimate, ground-truth and other estimate topics.
 
     The simulator runs as its own process (``terrain-sim-node``), as on a
     robot; the estimator node and a recorder share this process. The
     simulator starts stepping once the estimator's subscriptions are matched.
+    ``realtime_factor``: None runs at the scenario's own.
     """
     import subprocess
     import tempfile
@@ -610,7 +870,8 @@ def run_scenario(scenario: DemoScenario, realtime_factor: float, progress: bool 
     recording = scenario.kind.recording
     msg_type = recording.message_class()
     params = dict(scenario.sim_overrides)
-    params.update(realtime_factor=realtime_factor, duration=scenario.duration, wait_for_subscribers=1)
+    factor = scenario.realtime_factor if realtime_factor is None else realtime_factor
+    params.update(realtime_factor=factor, duration=scenario.duration, wait_for_subscribers=1)
     tmp = Path(tempfile.mkdtemp(prefix="terrain-demo-"))
     overrides_file = _params_file(get_simulator(scenario.vehicle).node_name, params, tmp)
     command = [sys.executable, "-m", "vehicle_sim.ros.nodes", "--vehicle", scenario.vehicle]
@@ -627,6 +888,10 @@ def run_scenario(scenario: DemoScenario, realtime_factor: float, progress: bool 
         truth: list[Any] = []
         recorder.create_subscription(msg_type, f"{ns}/{recording.estimate_topic}", estimates.append, ESTIMATE_QOS)
         recorder.create_subscription(msg_type, f"{ns}/{recording.truth_topic}", truth.append, ESTIMATE_QOS)
+        others: dict[str, list[Any]] = {}
+        for other_type, topic in recording.other_estimates:
+            received = others.setdefault(topic, [])
+            recorder.create_subscription(_import_type(other_type), f"{ns}/{topic}", received.append, ESTIMATE_QOS)
         for other_type, topic in recording.other_sensors:
             recorder.create_subscription(_import_type(other_type), f"{ns}/{topic}", lambda _msg: None, SENSOR_QOS)
         executor = SingleThreadedExecutor(context=context)
@@ -676,6 +941,7 @@ def run_scenario(scenario: DemoScenario, realtime_factor: float, progress: bool 
         diagnostic_message=status.message,
         diagnostic_values={kv.key: kv.value for kv in status.values},
         wall_time=wall,
+        other_estimates=others,
     )
 
 
@@ -685,11 +951,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--realtime-factor",
         type=float,
-        default=1.0,
+        default=None,
         help=(
-            "simulated seconds per wall second (default 1: a soil-stiffness node, one Python "
-            "process, can fall behind the 1 kHz profile topic at 1.5x real time on a busy "
-            "2-core machine; its diagnostics then WARN of lost profile samples)"
+            "simulated seconds per wall second for every scenario (default: each scenario's own, "
+            "1 for all but the rover's 4: a soil-stiffness node, one Python process, can fall behind "
+            "the 1 kHz profile topic at 1.5x real time on a busy 2-core machine; its diagnostics "
+            "then WARN of lost profile samples)"
         ),
     )
     parser.add_argument(
@@ -707,13 +974,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     for scenario in SCENARIOS:
         if args.vehicle and scenario.vehicle not in args.vehicle:
             continue
+        factor = scenario.realtime_factor if args.realtime_factor is None else args.realtime_factor
         print(
             f"{scenario.vehicle}: {scenario.title} — simulating {scenario.duration:.0f} s at "
-            f"{args.realtime_factor:g}x real time, estimating live over ROS 2 ...",
+            f"{factor:g}x real time, estimating live over ROS 2 ...",
             file=sys.stderr,
         )
         kind = scenario.kind
-        result = kind.summarise(run_scenario(scenario, args.realtime_factor))
+        result = kind.summarise(run_scenario(scenario, factor))
         by_kind.setdefault(kind.name, (kind, []))[1].append(result)
         print(f"  plot: {kind.plot(result, out)}", file=sys.stderr)
     for kind, results in by_kind.values():
