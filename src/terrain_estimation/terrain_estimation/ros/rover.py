@@ -700,9 +700,17 @@ class RoverAdapter:
             *(TopicSpec(f"load_{w}", f"wheel/{w}/load", WrenchStamped) for w in ("front", "middle", "rear")),
         )
         self.outputs: Sequence[TopicSpec] = (
-            # The fields to compare with ground_truth/wheel_terrain are inside the
-            # wheels array, which the tools' flat summaries do not reach: none named.
-            TopicSpec("wheel_terrain", "wheel_terrain", WheelTerrainArray, "estimate"),
+            TopicSpec(
+                "wheel_terrain",
+                "wheel_terrain",
+                WheelTerrainArray,
+                "estimate",
+                truth_fields=tuple(
+                    f"wheels[{i}].{q}"
+                    for i in range(len(WHEELS))
+                    for q in ("slip", "normal_load", "drawbar_pull", "resistive_torque")
+                ),
+            ),
             TopicSpec("terrain_model", "terrain_model", TerrainResponseModel, "estimate"),
         )
         self.reset()
