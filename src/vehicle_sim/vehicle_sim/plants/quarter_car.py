@@ -44,6 +44,15 @@ Contact
     would pull (MODELS.md A.10 item 5: 7–9 % of the time at ISO F, 10 m/s).
     Without it (the paper's linear model) F may go negative.
 
+Effects
+    :class:`QuarterCarEffects` (``Scenario.effects``) switches on the
+    unmodelled effects of the sim-to-real catalogue (CONTRACT.md "Nominal
+    model and effects"; :data:`QUARTER_CAR_EFFECTS`): accelerometer bias,
+    scale and delay, Bekker-type nonlinear soil, wheel lift-off, Coulomb
+    suspension friction, tire damping, tire enveloping and a sprung-mass
+    change. All off (the default) is the linear model above, bit for bit:
+    the nominal path runs the same arithmetic as before the effects existed.
+
 Soil changes
     The soil under the tire is looked up at every RK4 stage from the distance
     travelled. Coordinates stay deviations from the *current* soil's static
@@ -55,18 +64,24 @@ Soil changes
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vehicle_sim.terrain.profiles import FlatProfile, RoadProfile
+from vehicle_sim.terrain.profiles import FlatProfile, HarmonicProfile, RoadProfile
 from vehicle_sim.terrain.soils import GRANEVILLE_LOAM, SoilPath, k_tot
 
 __all__ = [
+    "FRICTION_VELOCITY_SCALE",
+    "LRV_IGNORED_EFFECTS",
+    "QUARTER_CAR_EFFECTS",
     "STANDARD_GRAVITY",
+    "QuarterCarEffects",
     "LRVVehicle",
     "ProfileReadings",
     "QuarterCarSample",
@@ -76,6 +91,7 @@ __all__ = [
     "Scenario",
     "SimulationResult",
     "SpeedProfile",
+    "enveloped_profile",
     "simulate",
 ]
 
@@ -235,6 +251,223 @@ Vehicle = QuarterCarVehicle | LRVVehicle
 
 
 # ---------------------------------------------------------------------------
+# Effects (CONTRACT.md "Nominal model and effects")
+# ---------------------------------------------------------------------------
+
+FRICTION_VELOCITY_SCALE = 0.02
+"""Velocity scale v_f (m/s) of the smoothed Coulomb suspension friction
+F_f = F_c · tanh(Δv / v_f): 96 % of F_c at |Δv| = 2 v_f = 4 cm/s. Its slope
+F_c / v_f acts as a viscous damper near Δv = 0; the simulator checks that
+RK4 resolves it (see :class:`QuarterCarEffects`)."""
+
+ENVELOPING_QUADRATURE_POINTS = 16
+"""Gauss–Legendre points of the contact-patch average for profiles that are
+not sums of harmonics (a :class:`HarmonicProfile` is averaged exactly)."""
+
+QUARTER_CAR_EFFECTS: Mapping[str, tuple[str, ...]] = MappingProxyType(
+    {
+        "accel_bias": ("accel_bias_body", "accel_bias_wheel"),
+        "accel_scale": ("accel_scale_body", "accel_scale_wheel"),
+        "sensor_delay": ("sensor_delay",),
+        "nonlinear_soil": ("soil_exponent",),
+        "wheel_liftoff": ("wheel_liftoff",),
+        "suspension_friction": ("suspension_friction",),
+        "tire_damping": ("tire_damping",),
+        "tire_enveloping": ("tire_contact_length",),
+        "sprung_mass_change": ("sprung_mass_change",),
+    }
+)
+"""Catalogue effect name (issue 6, quarter car / LRV) → :class:`QuarterCarEffects` fields."""
+
+LRV_IGNORED_EFFECTS: tuple[str, ...] = (
+    "accel_bias_wheel",
+    "accel_scale_wheel",
+    "suspension_friction",
+    "tire_damping",
+)
+"""Fields that have no meaning for the 1-DOF LRV (no wheel accelerometer, no
+separate suspension or tire): a simulator of the LRV rejects them when set."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class QuarterCarEffects:
+    """Unmodelled effects of the sim-to-real catalogue, each switchable, all off by default.
+
+    The default instance (:meth:`nominal`) is the paper's linear model, bit for
+    bit. Used by the 2-DOF :class:`QuarterCarVehicle` and the 1-DOF
+    :class:`LRVVehicle`; the fields of :data:`LRV_IGNORED_EFFECTS` do not
+    apply to the LRV and its simulator raises ValueError when they are set.
+    :data:`QUARTER_CAR_EFFECTS` maps the catalogue names to the fields.
+
+    Accelerometer model (body and wheel alike)::
+
+        reading(t) = (1 + accel_scale) · (ÿ + g)(t − sensor_delay) + accel_bias + noise(t)
+
+    Attributes:
+        accel_bias_body: Constant bias of the body accelerometer (m/s²).
+        accel_bias_wheel: Constant bias of the wheel accelerometer (m/s²); 2-DOF only.
+        accel_scale_body: Scale-factor error s of the body accelerometer (–):
+            the true specific force is multiplied by (1 + s); −1 < s < 1.
+        accel_scale_wheel: Same for the wheel accelerometer (–); 2-DOF only.
+        sensor_delay: Latency of the accelerometers relative to the profile
+            sampler and the joint states (s), 0–1 s. A whole number of sensor
+            periods shifts the samples exactly; a fractional delay interpolates
+            linearly between the two neighbouring sensor samples. Before the
+            run has lasted the delay, the t = 0 reading is repeated.
+        soil_exponent: Bekker-type pressure–sinkage exponent n (–). The soil
+            force is F = k_s z₀ (z/z₀)ⁿ, z the total soil sinkage and
+            z₀ = W/k_s the static one (W the static load), in series with the
+            tire (or the LRV's combined spring): the static equilibrium is
+            unchanged and the stiffness at z₀ is n·k_s (n = 1: the linear soil
+            exactly). n < 1 softens, n > 1 stiffens under extra load. 0 or 1:
+            off (linear soil); otherwise 0.2 ≤ n ≤ 3. For z < 0 the law is
+            continued as an odd function (the soil pulls, like the paper's
+            linear spring) unless ``wheel_liftoff`` is on.
+        wheel_liftoff: Unilateral contact: the total ground force
+            W + F_d is clipped at 0 (the wheel leaves the ground). Also
+            reachable through ``Scenario.wheel_liftoff`` (kept for backward
+            compatibility; either switches it on).
+        suspension_friction: Coulomb friction force F_c (N) in the suspension
+            (2-DOF only), smoothed as F_c · tanh(Δv / v_f) on the relative
+            velocity Δv = ẏ2 − ẏ1 with v_f = :data:`FRICTION_VELOCITY_SCALE`.
+            The simulator requires F_c·Δt / (v_f·μ) ≤ 1 (μ the reduced mass
+            m_s m_ns/(m_s + m_ns), Δt the RK4 step) so that RK4 resolves the
+            near-stick slope: F_c ≤ ≈ 830 N at 1 ms.
+        tire_damping: Damper c_t (N·s/m) in parallel with the tire stiffness
+            (2-DOF only): F_d = k_tot (h − y2) + c_t (ḣ − ẏ2). Like the LRV's
+            damper it acts across the whole tire–soil series chain (massless
+            simplification, no internal contact state).
+        tire_contact_length: Contact-patch length L (m): the road felt by the
+            tire is the moving average of h over [s − L/2, s + L/2]
+            (wavelengths L, L/2, … are cancelled, short ones attenuated as
+            sinc(L/λ)). The profile sampler still measures the true h, and so
+            does the truth's ``road_elevation``. 0: off.
+        sprung_mass_change: Relative change x of the sprung mass (–): the
+            plant runs with m_s (1 + x) (the LRV's lumped mass m (1 + x)); the
+            static load changes with it. x > −1.
+    """
+
+    accel_bias_body: float = 0.0
+    accel_bias_wheel: float = 0.0
+    accel_scale_body: float = 0.0
+    accel_scale_wheel: float = 0.0
+    sensor_delay: float = 0.0
+    soil_exponent: float = 0.0
+    wheel_liftoff: bool = False
+    suspension_friction: float = 0.0
+    tire_damping: float = 0.0
+    tire_contact_length: float = 0.0
+    sprung_mass_change: float = 0.0
+
+    def __post_init__(self) -> None:
+        owner = "QuarterCarEffects"
+
+        def number(name: str) -> float:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise ValueError(f"{owner}.{name} must be a finite number, got {value!r}")
+            object.__setattr__(self, name, float(value))
+            return float(value)
+
+        for name in ("accel_bias_body", "accel_bias_wheel"):
+            number(name)
+        for name in ("accel_scale_body", "accel_scale_wheel"):
+            if not -1.0 < number(name) < 1.0:
+                raise ValueError(f"{owner}.{name} must be in (−1, 1), got {getattr(self, name)}")
+        if not 0.0 <= number("sensor_delay") <= 1.0:
+            raise ValueError(f"{owner}.sensor_delay must be in [0, 1] s, got {self.sensor_delay}")
+        n = number("soil_exponent")
+        if not (n == 0.0 or 0.2 <= n <= 3.0):
+            raise ValueError(f"{owner}.soil_exponent must be 0 (off) or in [0.2, 3], got {n}")
+        if not isinstance(self.wheel_liftoff, bool | np.bool_):
+            raise ValueError(f"{owner}.wheel_liftoff must be a bool, got {self.wheel_liftoff!r}")
+        object.__setattr__(self, "wheel_liftoff", bool(self.wheel_liftoff))
+        if not 0.0 <= number("suspension_friction") <= 1.0e5:
+            raise ValueError(f"{owner}.suspension_friction must be in [0, 1e5] N, got {self.suspension_friction}")
+        if not 0.0 <= number("tire_damping") <= 1.0e6:
+            raise ValueError(f"{owner}.tire_damping must be in [0, 1e6] N·s/m, got {self.tire_damping}")
+        if not 0.0 <= number("tire_contact_length") <= 5.0:
+            raise ValueError(f"{owner}.tire_contact_length must be in [0, 5] m, got {self.tire_contact_length}")
+        if not -1.0 < number("sprung_mass_change") <= 10.0:
+            raise ValueError(f"{owner}.sprung_mass_change must be in (−1, 10], got {self.sprung_mass_change}")
+
+    @classmethod
+    def nominal(cls) -> QuarterCarEffects:
+        """Everything off: the paper's linear quarter car / LRV."""
+        return cls()
+
+    @property
+    def nonlinear_soil(self) -> bool:
+        """True if the soil follows the Bekker-type law (soil_exponent not 0 or 1)."""
+        return self.soil_exponent not in (0.0, 1.0)
+
+    @property
+    def active(self) -> tuple[str, ...]:
+        """Names of the fields that are switched on (soil_exponent = 1 counts as off)."""
+        reference = QuarterCarEffects()
+        return tuple(
+            name
+            for name in self.__dataclass_fields__
+            if getattr(self, name) != getattr(reference, name) and (name != "soil_exponent" or self.nonlinear_soil)
+        )
+
+    @property
+    def active_effects(self) -> tuple[str, ...]:
+        """Catalogue names (keys of :data:`QUARTER_CAR_EFFECTS`) of the effects switched on."""
+        on = set(self.active)
+        return tuple(effect for effect, names in QUARTER_CAR_EFFECTS.items() if on.intersection(names))
+
+
+class _MovingAverageProfile(RoadProfile):
+    """h averaged over a centred window of length L, by Gauss–Legendre quadrature.
+
+    The slope is exact: d/ds of the average is (h(s + L/2) − h(s − L/2)) / L.
+    """
+
+    def __init__(self, profile: RoadProfile, length: float) -> None:
+        self.profile = profile
+        self.length = length
+        nodes, weights = np.polynomial.legendre.leggauss(ENVELOPING_QUADRATURE_POINTS)
+        self._offsets = 0.5 * length * nodes
+        self._weights = 0.5 * weights
+        self.name = f"{profile.name}_enveloped"
+        self.description = f"{profile.description} (moving average over {length:g} m)"
+
+    def elevation_and_slope(self, distance: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        s = np.asarray(distance, dtype=float)
+        samples = self.profile.elevation(np.add.outer(s, self._offsets))
+        h = samples @ self._weights
+        half = 0.5 * self.length
+        slope = (self.profile.elevation(s + half) - self.profile.elevation(s - half)) / self.length
+        return np.asarray(h, dtype=float), np.asarray(slope, dtype=float)
+
+
+def enveloped_profile(profile: RoadProfile, contact_length: float) -> RoadProfile:
+    """The road the tire feels: h averaged over the contact patch [s − L/2, s + L/2].
+
+    Args:
+        profile: The true road.
+        contact_length: L (m); 0 returns ``profile`` itself.
+
+    Returns:
+        A :class:`HarmonicProfile` with amplitudes × sinc(n_i L) (exact) for a
+        harmonic road, the road itself when flat or L = 0, a quadrature
+        average otherwise.
+    """
+    if contact_length == 0.0 or isinstance(profile, FlatProfile):
+        return profile
+    if isinstance(profile, HarmonicProfile):
+        return HarmonicProfile(
+            profile.spatial_frequencies,
+            profile.amplitudes * np.sinc(profile.spatial_frequencies * contact_length),
+            profile.phases,
+            name=f"{profile.name}_enveloped",
+            description=f"{profile.description} (moving average over {contact_length:g} m)",
+        )
+    return _MovingAverageProfile(profile, contact_length)
+
+
+# ---------------------------------------------------------------------------
 # Scenario
 # ---------------------------------------------------------------------------
 
@@ -336,7 +569,11 @@ class Scenario:
             0.5 as the paper's R.
         profile_noise_std: Profile sampler elevation noise σ_h (m).
         gravity: g (m/s²); sets the static load and the accelerometer offset.
-        wheel_liftoff: Unilateral contact (the wheel may leave the ground).
+        wheel_liftoff: Unilateral contact (the wheel may leave the ground);
+            kept for backward compatibility, the same switch as
+            ``effects.wheel_liftoff``: either one on switches both on.
+        effects: Unmodelled effects switched on (default: none, the nominal
+            plant; CONTRACT.md "Nominal model and effects").
     """
 
     profile: RoadProfile = field(default_factory=FlatProfile)
@@ -349,8 +586,15 @@ class Scenario:
     profile_noise_std: float = 1.0e-4
     gravity: float = STANDARD_GRAVITY
     wheel_liftoff: bool = False
+    effects: QuarterCarEffects = field(default_factory=QuarterCarEffects)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.effects, QuarterCarEffects):
+            raise ValueError(f"effects must be a QuarterCarEffects, got {self.effects!r}")
+        # One switch, two spellings: Scenario.wheel_liftoff predates the effects.
+        if self.wheel_liftoff and not self.effects.wheel_liftoff:
+            object.__setattr__(self, "effects", replace(self.effects, wheel_liftoff=True))
+        object.__setattr__(self, "wheel_liftoff", bool(self.effects.wheel_liftoff))
         if not isinstance(self.soil_path, SoilPath):
             object.__setattr__(self, "soil_path", SoilPath(self.soil_path))
         if not isinstance(self.speed, SpeedProfile):
@@ -410,7 +654,8 @@ class QuarterCarTruth:
         wheel_displacement: y2 (m); None for the LRV.
         wheel_velocity: ẏ2 (m/s); None for the LRV.
         wheel_acceleration: ÿ2 (m/s²); None for the LRV.
-        road_elevation: h at the tire (m), noise-free.
+        road_elevation: h at the tire (m), noise-free; the true road, also
+            with ``tire_contact_length`` (the tire then feels its average).
         road_rate: ḣ = v dh/ds (m/s).
         contact_force: Total normal ground force W + F_d (N); clipped at 0
             when lift-off is enabled, possibly negative otherwise.
@@ -587,9 +832,208 @@ def _advance_lrv(
     return y1, v1
 
 
+def _bekker_chain_force(deflection: float, series_stiffness: float, k_s: float, load: float, n: float) -> float:
+    """Dynamic force F_d (N) of a linear spring in series with the Bekker-type soil.
+
+    The chain carries the total force F = W + F_d; the spring deflects by F/k,
+    the soil sinks to z = z₀ σ(F/W)^(1/n) (σ: odd continuation), z₀ = W/k_s.
+    Solves (F − W)/k + z₀ (σ(F/W)^(1/n) − 1) = deflection, deflection the
+    chain's compression beyond static (h − y), by safeguarded Newton in
+    x = F/W (the left side increases strictly with x).
+    """
+    if load <= 0.0:
+        # No static sinkage to scale the law around: fall back to the linear chain.
+        return float(k_tot(k_s, series_stiffness)) * deflection
+    ratio = k_s / series_stiffness  # (k_s/k): the spring's share in units of z₀
+    target = deflection * k_s / load  # deflection / z₀
+    inv_n = 1.0 / n
+
+    def residual(x: float) -> float:
+        root = abs(x) ** inv_n
+        return ratio * (x - 1.0) + math.copysign(root, x) - 1.0 - target
+
+    x = 1.0 + target / (1.0 + ratio)  # the linear chain's answer
+    f = residual(x)
+    if f == 0.0:
+        return load * (x - 1.0)
+    # Bracket the root by doubling steps away from the linear guess.
+    step = max(1.0, abs(x))
+    lo, hi = (x, x + step) if f < 0.0 else (x - step, x)
+    while residual(lo) > 0.0:
+        step *= 2.0
+        lo -= step
+    while residual(hi) < 0.0:
+        step *= 2.0
+        hi += step
+    for _ in range(100):
+        f = residual(x)
+        if f == 0.0:
+            break
+        if f < 0.0:
+            lo = x
+        else:
+            hi = x
+        ax = abs(x)
+        slope = ratio + inv_n * ax ** (inv_n - 1.0) if ax > 0.0 else math.inf
+        x_new = x - f / slope if math.isfinite(slope) else 0.5 * (lo + hi)
+        if not lo < x_new < hi:
+            x_new = 0.5 * (lo + hi)
+        if abs(x_new - x) <= 1e-13 * max(1.0, abs(x)):
+            x = x_new
+            break
+        x = x_new
+    return load * (x - 1.0)
+
+
+@dataclass(frozen=True)
+class _Dynamics:
+    """The effects that change the equations of motion, resolved for one simulator."""
+
+    soil_exponent: float  # 0: linear soil
+    friction: float  # F_c (N)
+    tire_damping: float  # c_t (N·s/m)
+
+    def ground(self, deflection: float, kt: float, k_s: float, series: float, load: float) -> float:
+        """Spring part of the dynamic ground force (N) for chain compression ``deflection`` (m)."""
+        if self.soil_exponent:
+            return _bekker_chain_force(deflection, series, k_s, load, self.soil_exponent)
+        return kt * deflection
+
+
+def _two_dof_forces(
+    y1: float,
+    v1: float,
+    y2: float,
+    v2: float,
+    h: float,
+    h_rate: float,
+    kt: float,
+    k_s: float,
+    vehicle: QuarterCarVehicle,
+    load: float,
+    dynamics: _Dynamics,
+) -> tuple[float, float]:
+    """(suspension force on the body, dynamic ground force F_d before lift-off) in N."""
+    dv = v2 - v1
+    suspension = vehicle.suspension_stiffness * (y2 - y1) + vehicle.suspension_damping * dv
+    if dynamics.friction:
+        suspension += dynamics.friction * math.tanh(dv / FRICTION_VELOCITY_SCALE)
+    ground = dynamics.ground(h - y2, kt, k_s, vehicle.tire_stiffness, load)
+    if dynamics.tire_damping:
+        ground += dynamics.tire_damping * (h_rate - v2)
+    return suspension, ground
+
+
+def _advance_two_dof_effects(
+    state: tuple[float, float, float, float],
+    road: list[float],
+    road_rate: list[float],
+    stiffness: list[float],
+    soil_stiffness: list[float],
+    substeps: int,
+    dt: float,
+    vehicle: QuarterCarVehicle,
+    static_load: float,
+    liftoff: bool,
+    dynamics: _Dynamics,
+) -> tuple[float, float, float, float]:
+    """RK4 of eq. 2 with nonlinear soil, suspension friction and/or tire damping."""
+    m1, m2 = vehicle.sprung_mass, vehicle.unsprung_mass
+    floor = -static_load
+
+    def accelerations(y1: float, v1: float, y2: float, v2: float, j: int) -> tuple[float, float]:
+        suspension, ground = _two_dof_forces(
+            y1, v1, y2, v2, road[j], road_rate[j], stiffness[j], soil_stiffness[j], vehicle, static_load, dynamics
+        )
+        if liftoff and ground < floor:
+            ground = floor
+        return suspension / m1, (ground - suspension) / m2
+
+    y1, v1, y2, v2 = state
+    half, sixth = 0.5 * dt, dt / 6.0
+    for i in range(substeps):
+        j = 2 * i
+        a1, b1 = accelerations(y1, v1, y2, v2, j)
+        p1, q1 = v1 + half * a1, v2 + half * b1
+        a2, b2 = accelerations(y1 + half * v1, p1, y2 + half * v2, q1, j + 1)
+        p2, q2 = v1 + half * a2, v2 + half * b2
+        a3, b3 = accelerations(y1 + half * p1, p2, y2 + half * q1, q2, j + 1)
+        p3, q3 = v1 + dt * a3, v2 + dt * b3
+        a4, b4 = accelerations(y1 + dt * p2, p3, y2 + dt * q2, q3, j + 2)
+        y1 += sixth * (v1 + 2.0 * p1 + 2.0 * p2 + p3)
+        y2 += sixth * (v2 + 2.0 * q1 + 2.0 * q2 + q3)
+        v1 += sixth * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+        v2 += sixth * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+    return y1, v1, y2, v2
+
+
+def _lrv_forces(
+    y1: float,
+    v1: float,
+    h: float,
+    h_rate: float,
+    kt: float,
+    k_s: float,
+    vehicle: LRVVehicle,
+    load: float,
+    dynamics: _Dynamics,
+) -> tuple[float, float]:
+    """:func:`_lrv_ground_force` with the nonlinear soil."""
+    if not dynamics.soil_exponent:
+        return _lrv_ground_force(y1, v1, h, h_rate, kt, vehicle)
+    spring = dynamics.ground(h - y1, kt, k_s, vehicle.combined_stiffness, load)
+    if vehicle.damper_reference == "ground":
+        return spring + vehicle.damping * (h_rate - v1), 0.0
+    return spring, -vehicle.damping * v1
+
+
+def _advance_lrv_effects(
+    state: tuple[float, float],
+    road: list[float],
+    road_rate: list[float],
+    stiffness: list[float],
+    soil_stiffness: list[float],
+    substeps: int,
+    dt: float,
+    vehicle: LRVVehicle,
+    static_load: float,
+    liftoff: bool,
+    dynamics: _Dynamics,
+) -> tuple[float, float]:
+    """RK4 of the 1-DOF LRV with the nonlinear soil."""
+    m = vehicle.sprung_mass
+    floor = -static_load
+
+    def acceleration(y1: float, v1: float, j: int) -> float:
+        ground, skyhook = _lrv_forces(
+            y1, v1, road[j], road_rate[j], stiffness[j], soil_stiffness[j], vehicle, static_load, dynamics
+        )
+        if liftoff and ground < floor:
+            ground = floor
+        return (ground + skyhook) / m
+
+    y1, v1 = state
+    half, sixth = 0.5 * dt, dt / 6.0
+    for i in range(substeps):
+        j = 2 * i
+        a1 = acceleration(y1, v1, j)
+        p1 = v1 + half * a1
+        a2 = acceleration(y1 + half * v1, p1, j + 1)
+        p2 = v1 + half * a2
+        a3 = acceleration(y1 + half * p1, p2, j + 1)
+        p3 = v1 + dt * a3
+        a4 = acceleration(y1 + dt * p2, p3, j + 2)
+        y1 += sixth * (v1 + 2.0 * p1 + 2.0 * p2 + p3)
+        v1 += sixth * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+    return y1, v1
+
+
 # ---------------------------------------------------------------------------
 # Simulator
 # ---------------------------------------------------------------------------
+
+
+_ACCEL_FIELDS = frozenset(("accel_bias_body", "accel_bias_wheel", "accel_scale_body", "accel_scale_wheel"))
 
 
 class QuarterCarSimulator:
@@ -620,6 +1064,14 @@ class QuarterCarSimulator:
         self.scenario = scenario
         self.seed = seed
         self._two_dof = isinstance(vehicle, QuarterCarVehicle)
+        effects = scenario.effects
+        if not self._two_dof:
+            for name in LRV_IGNORED_EFFECTS:
+                if getattr(effects, name) != 0.0:
+                    raise ValueError(
+                        f"QuarterCarEffects.{name} = {getattr(effects, name)} does not apply to the 1-DOF LRV "
+                        "(no wheel accelerometer, no separate suspension or tire); leave it at 0"
+                    )
         self._period = scenario.sensor_period
         self._substeps = scenario.substeps
         self._dt = self._period / self._substeps
@@ -628,19 +1080,52 @@ class QuarterCarSimulator:
         self._accel_rng = np.random.default_rng(accel_seed)
         self._profile_rng = np.random.default_rng(profile_seed)
         self._accel_std = math.sqrt(scenario.accel_noise_variance)
-        self._static_load = vehicle.total_mass * scenario.gravity
+        # The plant actually integrated: the vehicle with the sprung-mass change.
+        self._plant: Vehicle = (
+            replace(vehicle, sprung_mass=vehicle.sprung_mass * (1.0 + effects.sprung_mass_change))
+            if effects.sprung_mass_change
+            else vehicle
+        )
+        self._static_load = self._plant.total_mass * scenario.gravity
         self._k_tot_by_segment = [vehicle.k_tot(soil.k_s) for soil in scenario.soil_path.soils]
+        self._dynamics = _Dynamics(
+            soil_exponent=effects.soil_exponent if effects.nonlinear_soil else 0.0,
+            friction=effects.suspension_friction,
+            tire_damping=effects.tire_damping,
+        )
+        self._nominal_dynamics = self._dynamics == _Dynamics(0.0, 0.0, 0.0)
+        if self._dynamics.friction and isinstance(self._plant, QuarterCarVehicle):
+            reduced = self._plant.sprung_mass * self._plant.unsprung_mass / self._plant.total_mass
+            stiffness = self._dynamics.friction * self._dt / (FRICTION_VELOCITY_SCALE * reduced)
+            if stiffness > 1.0:
+                raise ValueError(
+                    f"QuarterCarEffects.suspension_friction = {effects.suspension_friction} N is too stiff for the "
+                    f"RK4 step {self._dt} s (F_c·dt/(v_f·mu) = {stiffness:.3g} > 1); reduce it or integration_step"
+                )
+        # The road the tire feels (contact-patch average); the profiler measures scenario.profile.
+        self._tire_profile = enveloped_profile(scenario.profile, effects.tire_contact_length)
+        self._enveloping = self._tire_profile is not scenario.profile
         self._step_index = 0
         self._next_profile_index = 0
         n_states = 4 if self._two_dof else 2
         if initial_state is None:
-            h0 = float(scenario.profile.elevation(np.array([0.0]))[0])
+            h0 = float(self._tire_profile.elevation(np.array([0.0]))[0])
             state: tuple[float, ...] = (h0, 0.0, h0, 0.0) if self._two_dof else (h0, 0.0)
         else:
             state = tuple(float(x) for x in initial_state)
             if len(state) != n_states:
                 raise ValueError(f"initial_state needs {n_states} values, got {len(state)}")
         self._state: tuple[float, ...] = state
+        # Noise-free true specific forces (body, wheel) at the sensor rate from t = 0, for the delay.
+        self._delay_lag = effects.sensor_delay / self._period
+        self._accel_history: deque[tuple[float, float]] = deque(maxlen=int(math.ceil(self._delay_lag)) + 2)
+        if effects.sensor_delay:
+            s0 = float(scenario.speed.distance(0.0))
+            h, slope = self._tire_profile.elevation_and_slope(np.array([s0]))
+            segment = int(scenario.soil_path.index_at(np.array([s0]))[0])
+            rate = float(scenario.speed.speed(0.0)) * float(slope[0])
+            truth = self._truth(0.0, 0.0, float(h[0]), rate, self._k_tot_by_segment[segment], segment)
+            self._accel_history.append(self._specific_forces(truth))
 
     @property
     def t(self) -> float:
@@ -689,46 +1174,76 @@ class QuarterCarSimulator:
             road, slope = scenario.profile.elevation_and_slope(stage_distance)
             road_rate = speed_profile.speed(stage_times) * slope
 
+        if self._enveloping:
+            # The same stage grid on the road the tire feels.
+            if constant_speed:
+                tire_road, tire_slope = self._tire_profile.evaluate_uniform(s0, stage_spacing, stage_distance.size)
+                tire_rate = v * tire_slope
+            else:
+                tire_road, tire_slope = self._tire_profile.elevation_and_slope(stage_distance)
+                tire_rate = speed_profile.speed(t0 + self._stage_offsets) * tire_slope
+        else:
+            tire_road, tire_rate = road, road_rate
+
         soil_index = scenario.soil_path.index_at(stage_distance)
         stiffness = [self._k_tot_by_segment[i] for i in soil_index.tolist()]
-        road_list = road.tolist()
-        liftoff = scenario.wheel_liftoff
-        if self._two_dof:
-            self._state = _advance_two_dof(
-                self._state,  # type: ignore[arg-type]
-                road_list,
-                stiffness,
-                self._substeps,
-                self._dt,
-                self.vehicle,  # type: ignore[arg-type]
-                self._static_load,
-                liftoff,
-            )
+        road_list = tire_road.tolist()
+        liftoff = scenario.effects.wheel_liftoff
+        if self._nominal_dynamics:
+            if self._two_dof:
+                self._state = _advance_two_dof(
+                    self._state,  # type: ignore[arg-type]
+                    road_list,
+                    stiffness,
+                    self._substeps,
+                    self._dt,
+                    self._plant,  # type: ignore[arg-type]
+                    self._static_load,
+                    liftoff,
+                )
+            else:
+                self._state = _advance_lrv(
+                    self._state,  # type: ignore[arg-type]
+                    road_list,
+                    tire_rate.tolist(),
+                    stiffness,
+                    self._substeps,
+                    self._dt,
+                    self._plant,  # type: ignore[arg-type]
+                    self._static_load,
+                    liftoff,
+                )
         else:
-            self._state = _advance_lrv(
+            soils = scenario.soil_path.soils
+            soil_stiffness = [soils[i].k_s for i in soil_index.tolist()]
+            advance = _advance_two_dof_effects if self._two_dof else _advance_lrv_effects
+            self._state = advance(
                 self._state,  # type: ignore[arg-type]
                 road_list,
-                road_rate.tolist(),
+                tire_rate.tolist(),
                 stiffness,
+                soil_stiffness,
                 self._substeps,
                 self._dt,
-                self.vehicle,  # type: ignore[arg-type]
+                self._plant,  # type: ignore[arg-type]
                 self._static_load,
                 liftoff,
+                self._dynamics,
             )
         self._step_index += 1
 
         distance = float(stage_distance[-1])
         speed = float(speed_profile.speed(t1))
-        truth = self._truth(float(road[-1]), float(road_rate[-1]), stiffness[-1], int(soil_index[-1]))
-        noise = self._accel_rng.standard_normal(2) * self._accel_std
-        g = scenario.gravity
-        body_accel = float(truth.body_acceleration) + g + float(noise[0])
-        wheel_accel = (
-            float(truth.wheel_acceleration) + g + float(noise[1])  # type: ignore[arg-type]
-            if self._two_dof
-            else None
+        truth = self._truth(
+            float(road[-1]),
+            float(road_rate[-1]),
+            float(tire_road[-1]),
+            float(tire_rate[-1]),
+            stiffness[-1],
+            int(soil_index[-1]),
         )
+        noise = self._accel_rng.standard_normal(2) * self._accel_std
+        body_accel, wheel_accel = self._accelerometers(truth, noise)
         radius = self.vehicle.wheel_radius
         return QuarterCarSample(
             t=t1,
@@ -742,15 +1257,72 @@ class QuarterCarSimulator:
             truth=truth,
         )
 
-    def _truth(self, h: float, h_rate: float, kt: float, segment: int) -> QuarterCarTruth:
+    def _specific_forces(self, truth: QuarterCarTruth) -> tuple[float, float]:
+        """Noise-free true specific forces ÿ + g (body, wheel; 0 for the LRV's wheel), m/s²."""
+        g = self.scenario.gravity
+        wheel = truth.wheel_acceleration
+        return float(truth.body_acceleration) + g, (float(wheel) + g if wheel is not None else 0.0)
+
+    def _accelerometers(self, truth: QuarterCarTruth, noise: NDArray[np.float64]) -> tuple[float, float | None]:
+        """The accelerometer readings: true specific force, delayed, scaled, biased, plus noise."""
+        effects = self.scenario.effects
+        g = self.scenario.gravity
+        if not (effects.sensor_delay or _ACCEL_FIELDS.intersection(effects.active)):
+            # Nominal sensors: the same arithmetic as always (bit-identical output).
+            body = float(truth.body_acceleration) + g + float(noise[0])
+            wheel = (
+                float(truth.wheel_acceleration) + g + float(noise[1])  # type: ignore[arg-type]
+                if self._two_dof
+                else None
+            )
+            return body, wheel
+        body_sf, wheel_sf = self._delayed(self._specific_forces(truth))
+        body = (1.0 + effects.accel_scale_body) * body_sf + effects.accel_bias_body + float(noise[0])
+        if not self._two_dof:
+            return body, None
+        return body, (1.0 + effects.accel_scale_wheel) * wheel_sf + effects.accel_bias_wheel + float(noise[1])
+
+    def _delayed(self, current: tuple[float, float]) -> tuple[float, float]:
+        """The specific forces ``sensor_delay`` ago, linearly interpolated between sensor samples."""
+        if not self.scenario.effects.sensor_delay:
+            return current
+        history = self._accel_history
+        history.append(current)
+        lag = self._delay_lag
+        whole = int(math.floor(lag + 1e-9))
+        frac = max(lag - whole, 0.0)
+        if frac <= 1e-9:
+            frac = 0.0
+        needed = whole + (1 if frac else 0)
+        if needed > len(history) - 1:
+            return history[0]
+        newer = history[-1 - whole]
+        if not frac:
+            return newer
+        older = history[-2 - whole]
+        return (
+            (1.0 - frac) * newer[0] + frac * older[0],
+            (1.0 - frac) * newer[1] + frac * older[1],
+        )
+
+    def _truth(
+        self, h: float, h_rate: float, h_tire: float, h_tire_rate: float, kt: float, segment: int
+    ) -> QuarterCarTruth:
+        """Truth at the current state; ``h``/``h_rate`` the true road, ``h_tire``/``h_tire_rate`` the one felt."""
         soil = self.scenario.soil_path.soils[segment]
         load = self._static_load
-        liftoff = self.scenario.wheel_liftoff
+        liftoff = self.scenario.effects.wheel_liftoff
+        dynamics = self._dynamics
         if self._two_dof:
-            vehicle: QuarterCarVehicle = self.vehicle  # type: ignore[assignment]
+            vehicle: QuarterCarVehicle = self._plant  # type: ignore[assignment]
             y1, v1, y2, v2 = self._state
-            suspension = vehicle.suspension_stiffness * (y2 - y1) + vehicle.suspension_damping * (v2 - v1)
-            dynamic = kt * (h - y2)
+            if self._nominal_dynamics:
+                suspension = vehicle.suspension_stiffness * (y2 - y1) + vehicle.suspension_damping * (v2 - v1)
+                dynamic = kt * (h_tire - y2)
+            else:
+                suspension, dynamic = _two_dof_forces(
+                    y1, v1, y2, v2, h_tire, h_tire_rate, kt, soil.k_s, vehicle, load, dynamics
+                )
             in_contact = load + dynamic > 0.0
             if liftoff and not in_contact:
                 dynamic = -load
@@ -758,9 +1330,9 @@ class QuarterCarSimulator:
             a2 = (dynamic - suspension) / vehicle.unsprung_mass
             wheel: tuple[float | None, float | None, float | None] = (y2, v2, a2)
         else:
-            lrv: LRVVehicle = self.vehicle  # type: ignore[assignment]
+            lrv: LRVVehicle = self._plant  # type: ignore[assignment]
             y1, v1 = self._state
-            dynamic, skyhook = _lrv_ground_force(y1, v1, h, h_rate, kt, lrv)
+            dynamic, skyhook = _lrv_forces(y1, v1, h_tire, h_tire_rate, kt, soil.k_s, lrv, load, dynamics)
             in_contact = load + dynamic > 0.0
             if liftoff and not in_contact:
                 dynamic = -load

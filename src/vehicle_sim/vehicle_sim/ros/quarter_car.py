@@ -12,6 +12,11 @@ contract's topics (CONTRACT.md, quarter car section):
   (1 kHz by default): ``point.x`` distance travelled, ``point.z`` elevation.
 * ``ground_truth/soil_stiffness`` — terrain_msgs/SoilStiffness with the true
   k_s and k_tot.
+
+``effects.*`` parameters switch on the unmodelled effects of the sim-to-real
+catalogue (:class:`QuarterCarEffects`, CONTRACT.md "Nominal model and
+effects"); all are off by default (the nominal plant). The LRV declares only
+those that apply to a 1-DOF model.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from terrain_estimation.ros.time import sec_to_stamp
 from terrain_msgs.msg import SoilStiffness
 from vehicle_sim.plants.quarter_car import (
     LRVVehicle,
+    QuarterCarEffects,
     QuarterCarSample,
     QuarterCarSimulator,
     QuarterCarVehicle,
@@ -39,10 +45,13 @@ from vehicle_sim.terrain.profiles import ISO8608_CLASSES, RoadProfile, flat_prof
 from vehicle_sim.terrain.soils import SOILS, SoilPath, soil_by_name
 
 __all__ = [
+    "EFFECT_SPECS_COMMON",
+    "EFFECT_SPECS_TWO_DOF",
     "SCENARIO_SPECS",
     "PARAMETERS",
     "QuarterCarSimAdapter",
     "make_adapter",
+    "make_effects",
     "make_road",
     "make_scenario",
     "make_vehicle",
@@ -50,7 +59,105 @@ __all__ = [
 
 ROAD_CHOICES = tuple(ISO8608_CLASSES) + ("meadow_c", "flat")
 
-SCENARIO_SPECS: tuple[ParamSpec, ...] = (
+# Unmodelled effects (CONTRACT.md "Nominal model and effects"; QuarterCarEffects): all off by default.
+EFFECT_SPECS_COMMON: tuple[ParamSpec, ...] = (
+    ParamSpec(
+        "effects.accel_bias_body", 0.0, "[m/s^2] constant bias of the body accelerometer", -50.0, 50.0, read_only=True
+    ),
+    ParamSpec(
+        "effects.accel_scale_body",
+        0.0,
+        "[-] body accelerometer scale-factor error s: reading = (1 + s) x true",
+        -0.99,
+        0.99,
+        read_only=True,
+    ),
+    ParamSpec(
+        "effects.sensor_delay",
+        0.0,
+        "[s] accelerometer latency vs profile and joint states (fractional periods: linear interpolation)",
+        0.0,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "effects.soil_exponent",
+        0.0,
+        "[-] Bekker-type soil exponent n, F = k_s z0 (z/z0)^n about the static sinkage z0; 0 or 1: linear soil (off)",
+        0.0,
+        3.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "effects.wheel_liftoff", False, "unilateral tire contact (the wheel may leave the ground)", read_only=True
+    ),
+    ParamSpec(
+        "effects.tire_contact_length",
+        0.0,
+        "[m] contact-patch length: the tire feels the moving average of the road over it (0: off)",
+        0.0,
+        5.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "effects.sprung_mass_change",
+        0.0,
+        "[-] relative sprung-mass change x: the plant runs with m_s (1 + x)",
+        -0.99,
+        10.0,
+        read_only=True,
+    ),
+)
+
+# Effects of the 2-DOF quarter car only (the LRV has no wheel accelerometer, suspension or tire of its own).
+EFFECT_SPECS_TWO_DOF: tuple[ParamSpec, ...] = (
+    ParamSpec(
+        "effects.accel_bias_wheel", 0.0, "[m/s^2] constant bias of the wheel accelerometer", -50.0, 50.0, read_only=True
+    ),
+    ParamSpec(
+        "effects.accel_scale_wheel",
+        0.0,
+        "[-] wheel accelerometer scale-factor error s: reading = (1 + s) x true",
+        -0.99,
+        0.99,
+        read_only=True,
+    ),
+    ParamSpec(
+        "effects.suspension_friction",
+        0.0,
+        "[N] Coulomb suspension friction, smoothed F_c tanh(dv / 0.02 m/s); at most ~830 N with 1 ms RK4 steps",
+        0.0,
+        1.0e5,
+        read_only=True,
+    ),
+    ParamSpec(
+        "effects.tire_damping", 0.0, "[N*s/m] damper in parallel with the tire stiffness", 0.0, 1.0e6, read_only=True
+    ),
+)
+
+
+def make_effects(values: Mapping[str, ParamValue]) -> QuarterCarEffects:
+    """The effects from parameter values; the 2-DOF-only ones default to 0 when absent (LRV)."""
+
+    def number(name: str) -> float:
+        return float(values.get(f"effects.{name}", 0.0))
+
+    return QuarterCarEffects(
+        accel_bias_body=number("accel_bias_body"),
+        accel_bias_wheel=number("accel_bias_wheel"),
+        accel_scale_body=number("accel_scale_body"),
+        accel_scale_wheel=number("accel_scale_wheel"),
+        sensor_delay=number("sensor_delay"),
+        soil_exponent=number("soil_exponent"),
+        wheel_liftoff=bool(values.get("effects.wheel_liftoff", False)),
+        suspension_friction=number("suspension_friction"),
+        tire_damping=number("tire_damping"),
+        tire_contact_length=number("tire_contact_length"),
+        sprung_mass_change=number("sprung_mass_change"),
+    )
+
+
+_SCENARIO_HEAD: tuple[ParamSpec, ...] = (
     ParamSpec(
         "scenario.road",
         "D",
@@ -81,8 +188,14 @@ SCENARIO_SPECS: tuple[ParamSpec, ...] = (
     ),
     ParamSpec("scenario.speed", 10.0, "[m/s] constant travel speed", 0.0, 60.0, read_only=True),
     ParamSpec(
-        "scenario.wheel_liftoff", False, "unilateral tire contact (the wheel may leave the ground)", read_only=True
+        "scenario.wheel_liftoff",
+        False,
+        "unilateral tire contact; kept for old configs, same switch as effects.wheel_liftoff (either one on)",
+        read_only=True,
     ),
+)
+
+_SENSOR_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("sensors.rate", 100.0, "[Hz] accelerometer and joint-state rate", 1.0, 10000.0, read_only=True),
     ParamSpec("sensors.profile_rate", 1000.0, "[Hz] terrain profile sampler rate", 1.0, 100000.0, read_only=True),
     ParamSpec(
@@ -95,6 +208,9 @@ SCENARIO_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("frames.odom", "odom", "frame of terrain/profile (prefixed with the namespace)", read_only=True),
     ParamSpec("frames.base_link", "base_link", "body frame (prefixed with the namespace)", read_only=True),
 )
+
+SCENARIO_SPECS: tuple[ParamSpec, ...] = _SCENARIO_HEAD + EFFECT_SPECS_COMMON + _SENSOR_SPECS
+"""Scenario, effects (those the LRV has too) and sensor parameters."""
 
 
 def make_vehicle(kind: str, values: Mapping[str, ParamValue]) -> QuarterCarVehicle | LRVVehicle:
@@ -150,6 +266,7 @@ def make_scenario(values: Mapping[str, ParamValue]) -> Scenario:
         accel_noise_variance=float(values["sensors.accel_noise_variance"]),
         profile_noise_std=float(values["sensors.profile_noise_std"]),
         wheel_liftoff=bool(values["scenario.wheel_liftoff"]),
+        effects=make_effects(values),
     )
 
 
@@ -229,8 +346,9 @@ class QuarterCarSimAdapter:
 def specs_for(kind: str) -> tuple[ParamSpec, ...]:
     """Simulator specs of ``kind``: the estimator's vehicle parameters (one
     config file serves both) plus the scenario's."""
-    vehicle = VEHICLE_SPECS_LRV if kind == "lrv" else VEHICLE_SPECS_QUARTER_CAR
-    return vehicle + SCENARIO_SPECS
+    if kind == "lrv":
+        return VEHICLE_SPECS_LRV + SCENARIO_SPECS
+    return VEHICLE_SPECS_QUARTER_CAR + _SCENARIO_HEAD + EFFECT_SPECS_COMMON + EFFECT_SPECS_TWO_DOF + _SENSOR_SPECS
 
 
 PARAMETERS = specs_for("quarter_car")
