@@ -119,9 +119,45 @@ Sensors (Table IV, MODELS.md C.4) at 50 Hz, unbiased Gaussian noise unless an
     sample at t_k reports the state at t_k and the torque applied from t_k on.
 
 Effects (:class:`RoverEffects`, all off by default): load-cell bias and
-    cross-talk, IMU biases, sensor delay, a soil change at a given distance.
-    The vertical body velocity the estimator ignores is always present
-    (terrain-induced).
+    cross-talk, IMU biases, sensor delay, a soil change at a given distance,
+    slip-sinkage, grousers and a short-wavelength undulation of the wheel
+    path. The vertical body velocity the estimator ignores is always present
+    (terrain-induced); the undulation makes it larger. With every effect off
+    the plant is bit-identical to the nominal one (each effect is a separate
+    branch that is skipped when off). The catalogue with fit ranges is
+    :mod:`vehicle_sim.effects`.
+
+    Slip-sinkage (``slip_sinkage_coefficient`` c ≥ 0, –): the pressure–sinkage
+        moduli (k1, k2 of eqs. 4–5, i.e. Bekker's k_c, k_φ) fall with slip,
+        k_eff = k / (1 + c |i|), so a slipping wheel sinks deeper than the
+        static pressure–sinkage law says (Lyasko 2010's slip-sinkage; Ding et
+        al. 2011 obtain the same trend by raising n with slip). Implemented
+        at the force level, so it works with the full model and the surrogate
+        alike: with zero cohesion every stress of eqs. 4–6 scales with k at a
+        given θ0, hence W, DP and τ_R do too, and a wheel on modulus s·k at
+        load W has the θ0 of a wheel on modulus k at load W/s with forces
+        s × those. With s = 1/(1 + c |i|) the soil model is evaluated at
+        W (1 + c |i|) and its DP, τ_R are divided by 1 + c |i| (θ0 is the
+        model's own). Cohesion breaks the identity by ≈ c_soil/(σ tan φ)
+        (≈ 1 % with Table II's soil at 50 N). The surrogate's 200 N cap
+        applies to the scaled load.
+    Grousers (``grouser_height`` h_g ≥ 0, m): the soil between the grousers
+        moves with the wheel, so the shearing surface is the cylinder through
+        the grouser tips (Wong, *Theory of Ground Vehicles*, lugged wheels;
+        Ishigami et al. 2007 use the same effective radius). The soil model is
+        evaluated for a rigid wheel of radius r_w + h_g (same width) at the
+        tip slip i_g = 1 − (1 − i) r_w/(r_w + h_g) (the tip speed is
+        (r_w + h_g) ω); its DP and τ_R (about the axle) act on the plant. The
+        kinematics (path offset r_w, slip i) are unchanged: the rim rests on
+        the terrain and the grousers dig into it. The surrogate is fitted for
+        the larger wheel (≈ 0.5 s, cached).
+    Path undulation (``path_undulation_amplitude`` A ≥ 0, m,
+        ``path_undulation_wavelength`` λ > 0, m): A (1 − cos(2π x/λ)) is added
+        to the terrain's wheel-centre path (:attr:`RoverScenario.path`):
+        short-wavelength ground roughness that moves the body vertically
+        (ż0^R ≠ 0, what the estimators assume away, eq. 45) and adds terrain
+        curvature A (2π/λ)², which must stay below 1/r_w (smooth terrain
+        under the rim).
 
 Units: SI throughout (m, s, kg, rad, N, N·m).
 """
@@ -180,6 +216,7 @@ __all__ = [
     "slope_path",
     "solve_configuration",
     "step_path",
+    "undulated_path",
 ]
 
 Array = NDArray[np.float64]
@@ -448,6 +485,39 @@ def step_path(width: float, *, name: str = "step", duration: float = 100.0) -> W
     )
 
 
+def undulated_path(path: WheelPath, amplitude: float, wavelength: float) -> WheelPath:
+    """``path`` plus A (1 − cos(2π x/λ)) (m): the path-undulation effect (:class:`RoverEffects`).
+
+    Level and unchanged at x = 0; adds at most 2A to the height and A (2π/λ)²
+    to the curvature. Keeps the name and duration of ``path``.
+    """
+    _check_non_negative("undulated_path", "amplitude", amplitude)
+    _check_positive("undulated_path", "wavelength", wavelength)
+    k = 2.0 * math.pi / wavelength
+    base_profile, base_point = path.profile, path.point
+
+    def profile(x: Array) -> tuple[Array, Array, Array]:
+        z, dz, d2z = base_profile(x)
+        return (
+            z + amplitude * (1.0 - np.cos(k * x)),
+            dz + amplitude * k * np.sin(k * x),
+            d2z + amplitude * k * k * np.cos(k * x),
+        )
+
+    def point(x: float) -> tuple[float, float, float]:
+        z, dz, d2z = base_point(x)
+        c, s = math.cos(k * x), math.sin(k * x)
+        return z + amplitude * (1.0 - c), dz + amplitude * k * s, d2z + amplitude * k * k * c
+
+    return WheelPath(
+        name=path.name,
+        description=f"{path.description}, undulation {amplitude:g} m / {wavelength:g} m",
+        duration=path.duration,
+        profile=profile,
+        point=point,
+    )
+
+
 def _terrain(number: int, builder: Callable[[], WheelPath]) -> Callable[[], WheelPath]:
     def build() -> WheelPath:
         path = builder()
@@ -578,6 +648,11 @@ class RoverEffects:
         soil_change_distance: wheel-centre x (m) beyond which a wheel runs on
             ``soil_change_soil`` instead of the scenario's soil; None: no change.
         soil_change_soil: the soil after the change.
+        slip_sinkage_coefficient: c of k_eff = k/(1 + c |i|) (–), module docstring.
+        grouser_height: h_g, grouser height above the rim (m), module docstring.
+        path_undulation_amplitude: A of the undulation A (1 − cos(2π x/λ)) added
+            to the wheel-centre path (m); 0: none.
+        path_undulation_wavelength: λ of that undulation (m).
     """
 
     load_cell_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -587,9 +662,17 @@ class RoverEffects:
     sensor_delay: float = 0.0
     soil_change_distance: float | None = None
     soil_change_soil: WongReeceSoil | None = None
+    slip_sinkage_coefficient: float = 0.0
+    grouser_height: float = 0.0
+    path_undulation_amplitude: float = 0.0
+    path_undulation_wavelength: float = 0.5
 
     def __post_init__(self) -> None:
         owner = "RoverEffects"
+        _check_non_negative(owner, "slip_sinkage_coefficient", self.slip_sinkage_coefficient)
+        _check_non_negative(owner, "grouser_height", self.grouser_height)
+        _check_non_negative(owner, "path_undulation_amplitude", self.path_undulation_amplitude)
+        _check_positive(owner, "path_undulation_wavelength", self.path_undulation_wavelength)
         object.__setattr__(self, "load_cell_bias", _finite_tuple(owner, "load_cell_bias", self.load_cell_bias, 3))
         object.__setattr__(self, "imu_accel_bias", _finite_tuple(owner, "imu_accel_bias", self.imu_accel_bias, 2))
         _check_finite(owner, "load_cell_crosstalk", self.load_cell_crosstalk)
@@ -662,11 +745,23 @@ class RoverScenario:
         if not (0.0 < self.slip_stencil <= 0.1):
             raise ValueError(f"{owner}.slip_stencil must be in (0, 0.1], got {self.slip_stencil!r}")
         _check_finite(owner, "start_x", self.start_x)
+        amplitude = self.effects.path_undulation_amplitude
+        if amplitude > 0.0:
+            curvature = amplitude * (2.0 * math.pi / self.effects.path_undulation_wavelength) ** 2
+            if curvature * self.params.wheel_radius >= 1.0:
+                raise ValueError(
+                    f"{owner}.effects: path undulation curvature A (2π/λ)² = {curvature:.3g} 1/m must be below "
+                    f"1/r_w = {1.0 / self.params.wheel_radius:.3g} 1/m"
+                )
 
     @property
     def path(self) -> WheelPath:
-        """The wheel-centre path of :attr:`terrain`."""
-        return TERRAINS[self.terrain]()
+        """The wheel-centre path of :attr:`terrain`, with the path-undulation effect if it is on."""
+        path = TERRAINS[self.terrain]()
+        amplitude = self.effects.path_undulation_amplitude
+        if amplitude > 0.0:
+            path = undulated_path(path, amplitude, self.effects.path_undulation_wavelength)
+        return path
 
     @property
     def run_duration(self) -> float:
@@ -803,11 +898,19 @@ class RoverRun:
 
 
 class _Terramechanics:
-    """(W, i, soil index) → (DP, τ_R, θ0) with the selected model, vectorised, overload saturated."""
+    """(W, i, soil index) → (DP, τ_R, θ0) with the selected model, vectorised, overload saturated.
+
+    The slip-sinkage and grouser effects act here (module docstring).
+    """
 
     def __init__(self, scenario: RoverScenario) -> None:
         params = scenario.params
-        self.wheel = RigidWheel(radius=params.wheel_radius, width=params.wheel_width)
+        effects = scenario.effects
+        self.slip_sinkage = effects.slip_sinkage_coefficient
+        self.grouser_height = effects.grouser_height
+        # Slip at the grouser tips: i_g = 1 − (1 − i) r_w/(r_w + h_g).
+        self.grouser_speed_ratio = params.wheel_radius / (params.wheel_radius + effects.grouser_height)
+        self.wheel = RigidWheel(radius=params.wheel_radius + effects.grouser_height, width=params.wheel_width)
         soils = [scenario.soil]
         if scenario.effects.soil_change_soil is not None:
             soils.append(scenario.effects.soil_change_soil)
@@ -821,6 +924,14 @@ class _Terramechanics:
     def __call__(self, load: Array, slip: Array, soil_index: NDArray[np.int_]) -> tuple[Array, Array, Array]:
         load = np.maximum(load, 0.0)
         slip = np.clip(slip, -1.0, 1.0)
+        model_load, model_slip = load, slip
+        sinkage_scale: Array | None = None
+        if self.slip_sinkage > 0.0:
+            # k_eff = k/(1 + c|i|): forces at W are (model forces at W (1 + c|i|))/(1 + c|i|).
+            sinkage_scale = 1.0 + self.slip_sinkage * np.abs(slip)
+            model_load = load * sinkage_scale
+        if self.grouser_height > 0.0:
+            model_slip = 1.0 - (1.0 - slip) * self.grouser_speed_ratio
         dp = np.zeros_like(load)
         tau = np.zeros_like(load)
         entry = np.full_like(load, math.nan)
@@ -828,18 +939,21 @@ class _Terramechanics:
             rows = soil_index == index
             if self.kind == "surrogate":
                 # Saturated at the fitting grid's upper edge rather than extrapolated.
-                capped = np.minimum(load[rows], SURROGATE_LOAD_RANGE[1])
-                dp[rows], tau[rows] = self._surrogates[index].wheel_forces(capped, slip[rows])
+                capped = np.minimum(model_load[rows], SURROGATE_LOAD_RANGE[1])
+                dp[rows], tau[rows] = self._surrogates[index].wheel_forces(capped, model_slip[rows])
             else:
                 forces = wheel_forces(
-                    load[rows],
-                    slip[rows],
+                    model_load[rows],
+                    model_slip[rows],
                     self.soils[index],
                     self.wheel,
                     simpson_points=self.simpson_points,
                     overload="saturate",
                 )
                 dp[rows], tau[rows], entry[rows] = forces
+        if sinkage_scale is not None:
+            dp /= sinkage_scale
+            tau /= sinkage_scale
         lifted = load <= 0.0
         dp[lifted] = 0.0
         tau[lifted] = 0.0

@@ -1,0 +1,623 @@
+"""Machine-readable catalogue of the sim-to-real effects of every plant (issue 6, "effect catalogue").
+
+Each vehicle's plant has a frozen ``*Effects`` dataclass whose defaults are the
+nominal model (every effect off). This module names the effects of the
+catalogue, lists their parameters with physical units, the value that
+switches them off, a physical range to fit them in and a typical magnitude,
+and builds the plant's effects object from ``{effect: {parameter: value}}``
+(:func:`effects_for`). A diagnosis tool adds each effect in turn to the
+nominal model, fits its parameters within :attr:`EffectParameter.fit_range`
+and scores it.
+
+Vehicles (:data:`VEHICLES`)
+    ``"quarter_car"`` and ``"lrv"``: :class:`vehicle_sim.plants.quarter_car.QuarterCarEffects`
+    (the LRV has the same effects without the fields of
+    ``quarter_car.LRV_IGNORED_EFFECTS``, which its simulator rejects: no
+    wheel-accelerometer entries in ``accel_bias``/``accel_scale``, no
+    ``suspension_friction`` and ``tire_damping`` effects, as its 1-DOF model
+    has no unsprung mass and a single spring–damper); ``"skid_steer"``:
+    :class:`vehicle_sim.plants.skid_steer.SkidSteerEffects`; ``"rover"``:
+    :class:`vehicle_sim.plants.rover.RoverEffects`.
+
+Parameters
+    The quarter-car ``nonlinear_soil`` is off at n = 1 (the linear soil
+    exactly) rather than at the dataclass default 0, so that its fit range
+    [0.5, 2] is continuous and contains the off value.
+
+    A parameter is a scalar. Its :attr:`~EffectParameter.name` is the plant
+    field it sets; a tuple-valued field (per-axis or per-wheel biases) has
+    one independent parameter per component, named ``<field>_<component>``
+    (e.g. ``accel_bias_y``, ``load_cell_bias_middle``), with
+    :attr:`~EffectParameter.field` and :attr:`~EffectParameter.index` giving
+    the field and component. A boolean field is a *switch* parameter
+    (unit ``"bool"``, values 0/1 or False/True, off 0, not fitted: it has no
+    continuous degree of freedom and :func:`parameter_count` does not count
+    it). The rover's ``soil_change`` is the one effect whose parameters are
+    not fields: they are scale factors / changes of the scenario soil
+    (:class:`~vehicle_sim.terrain.wong_reece.WongReeceSoil`, Table II by
+    default) that build ``soil_change_soil``.
+
+    Every fit range is finite and contains the off value. Fit ranges are
+    physical bounds for a fit, not validation limits of the plants: a value
+    outside its range is rejected by :func:`effects_for` (ValueError naming
+    vehicle, effect, parameter and value).
+
+Building (:func:`effects_for`)
+    Starts from the nominal (all-off) effects of the vehicle, i.e. the
+    dataclass defaults (for the skid-steer *not* ``truth_default``, which
+    switches load-transfer dynamics and tire relaxation on), and sets the
+    fields of every named effect. Several effects combine. A parameter left
+    out of an effect's mapping takes its off value, except switches, which
+    are on when their effect is named (``{"tire_relaxation": {}}``).
+
+Units: SI (m, s, rad, N, Pa); "–" is dimensionless; "bool" a switch.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from vehicle_sim.plants.quarter_car import LRV_IGNORED_EFFECTS, QuarterCarEffects
+from vehicle_sim.plants.rover import RoverEffects
+from vehicle_sim.plants.skid_steer import SkidSteerEffects
+from vehicle_sim.terrain.wong_reece import TABLE_II_SOIL, WongReeceSoil
+
+__all__ = [
+    "CATALOGUE",
+    "VEHICLES",
+    "Effect",
+    "EffectParameter",
+    "effects_class",
+    "effects_for",
+    "parameter_count",
+]
+
+SWITCH_UNIT = "bool"
+
+
+@dataclass(frozen=True, kw_only=True)
+class EffectParameter:
+    """One scalar parameter of an effect.
+
+    Attributes:
+        name: parameter name: the plant's effects field, or ``<field>_<component>``
+            for a component of a tuple-valued field.
+        unit: physical unit (SI; "–" dimensionless, "bool" a switch).
+        off: value with which the parameter has no effect (the plant default).
+        fit_range: (low, high) physical range for fitting, finite, contains ``off``.
+        typical: typical magnitude of a real effect (a starting point / scale
+            for a fit; inside ``fit_range``).
+        description: what it is.
+        field: the plant's effects field it sets ("" for the rover soil-change
+            parameters, which build ``soil_change_soil``).
+        index: component of a tuple-valued field, None for a scalar field.
+    """
+
+    name: str
+    unit: str
+    off: float
+    fit_range: tuple[float, float]
+    typical: float
+    description: str
+    field: str = ""
+    index: int | None = None
+
+    def __post_init__(self) -> None:
+        low, high = (float(v) for v in self.fit_range)
+        object.__setattr__(self, "fit_range", (low, high))
+        if not (math.isfinite(low) and math.isfinite(high) and low < high):
+            raise ValueError(f"EffectParameter {self.name!r}: fit_range must be finite with low < high, got {self}")
+        if not (low <= self.off <= high and low <= self.typical <= high):
+            raise ValueError(f"EffectParameter {self.name!r}: off and typical must lie in fit_range, got {self}")
+        if not self.unit:
+            raise ValueError(f"EffectParameter {self.name!r}: unit must be given")
+
+    @property
+    def switch(self) -> bool:
+        """True for a boolean (on/off) parameter, which is not fitted."""
+        return self.unit == SWITCH_UNIT
+
+
+@dataclass(frozen=True, kw_only=True)
+class Effect:
+    """One effect of the catalogue for one vehicle.
+
+    Attributes:
+        vehicle: key of :data:`CATALOGUE`.
+        name: effect name (issue 6's catalogue names and additions).
+        description: what the effect is in the plant.
+        physical_meaning: which real-world mechanism it stands for.
+        parameters: its parameters.
+    """
+
+    vehicle: str
+    name: str
+    description: str
+    physical_meaning: str
+    parameters: tuple[EffectParameter, ...]
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of the parameters, in order."""
+        return tuple(p.name for p in self.parameters)
+
+    def parameter(self, name: str) -> EffectParameter:
+        """The parameter called ``name`` (KeyError if none)."""
+        for p in self.parameters:
+            if p.name == name:
+                return p
+        raise KeyError(f"{self.vehicle} effect {self.name!r} has no parameter {name!r}; has {self.parameter_names}")
+
+    def off_values(self) -> dict[str, float]:
+        """{parameter: off value}."""
+        return {p.name: p.off for p in self.parameters}
+
+    def typical_values(self) -> dict[str, float]:
+        """{parameter: typical value} (switches on)."""
+        return {p.name: p.typical for p in self.parameters}
+
+
+def parameter_count(effect: Effect) -> int:
+    """Continuous parameters a fit of ``effect`` estimates (switches are not counted)."""
+    return sum(1 for p in effect.parameters if not p.switch)
+
+
+# ---------------------------------------------------------------------------
+# Parameter helpers
+# ---------------------------------------------------------------------------
+
+
+def _scalar(
+    name: str, unit: str, off: float, fit_range: tuple[float, float], typical: float, description: str
+) -> EffectParameter:
+    return EffectParameter(
+        name=name, unit=unit, off=off, fit_range=fit_range, typical=typical, description=description, field=name
+    )
+
+
+def _components(
+    field: str,
+    components: tuple[str, ...],
+    unit: str,
+    fit_range: tuple[float, float],
+    typical: float,
+    description: str,
+) -> tuple[EffectParameter, ...]:
+    return tuple(
+        EffectParameter(
+            name=f"{field}_{component}",
+            unit=unit,
+            off=0.0,
+            fit_range=fit_range,
+            typical=typical,
+            description=f"{description} ({component})",
+            field=field,
+            index=index,
+        )
+        for index, component in enumerate(components)
+    )
+
+
+def _switch(name: str, description: str) -> EffectParameter:
+    return EffectParameter(
+        name=name, unit=SWITCH_UNIT, off=0.0, fit_range=(0.0, 1.0), typical=1.0, description=description, field=name
+    )
+
+
+#: (name, description, physical meaning, parameters) of one effect.
+_Row = tuple[str, str, str, tuple[EffectParameter, ...]]
+
+
+def _table(vehicle: str, effects: tuple[_Row, ...]) -> Mapping[str, Effect]:
+    table: dict[str, Effect] = {}
+    for name, description, meaning, parameters in effects:
+        if name in table:
+            raise ValueError(f"duplicate effect {name!r} for {vehicle}")
+        table[name] = Effect(
+            vehicle=vehicle, name=name, description=description, physical_meaning=meaning, parameters=parameters
+        )
+    return MappingProxyType(table)
+
+
+# ---------------------------------------------------------------------------
+# Skid-steer
+# ---------------------------------------------------------------------------
+
+_SKID_STEER = _table(
+    "skid_steer",
+    (
+        (
+            "gyro_bias",
+            "constant yaw-gyro bias",
+            "MEMS gyro turn-on bias / temperature drift",
+            (_scalar("gyro_bias", "rad/s", 0.0, (-0.05, 0.05), 0.005, "yaw-rate bias"),),
+        ),
+        (
+            "accel_bias",
+            "constant accelerometer bias per body axis",
+            "accelerometer bias and IMU mounting misalignment (a tilt of α reads ≈ g α)",
+            _components("accel_bias", ("x", "y", "z"), "m/s²", (-1.0, 1.0), 0.1, "accelerometer bias"),
+        ),
+        (
+            "sensor_delay",
+            "IMU latency, linear interpolation between samples",
+            "driver / bus / filter latency of the IMU relative to the wheel data",
+            (_scalar("sensor_delay", "s", 0.0, (0.0, 0.1), 0.02, "IMU latency"),),
+        ),
+        (
+            "wheel_radius_error",
+            "true rolling radius = nominal (1 + e)",
+            "tire wear, pressure, load-dependent effective rolling radius",
+            (_scalar("wheel_radius_error", "–", 0.0, (-0.2, 0.2), 0.03, "relative rolling-radius error e"),),
+        ),
+        (
+            "friction_change",
+            "true friction coefficient μ = nominal μ × factor",
+            "different ground (wet, loose, grass) than the nominal μ was identified on",
+            (_scalar("friction_change", "–", 1.0, (0.3, 2.0), 0.8, "friction factor"),),
+        ),
+        (
+            "cornering_stiffness_change",
+            "true cornering stiffness C_α = nominal × factor",
+            "tire pressure, load and ground dependence of the lateral stiffness",
+            (_scalar("cornering_stiffness_change", "–", 1.0, (0.3, 3.0), 0.7, "cornering-stiffness factor"),),
+        ),
+        (
+            "load_transfer_dynamics",
+            "sprung-mass roll/pitch dynamics: loads lag the accelerations, the IMU tilts with the body",
+            "suspension compliance (quasi-static load transfer in the nominal model)",
+            (_switch("load_transfer_dynamics", "roll/pitch load-transfer dynamics on"),),
+        ),
+        (
+            "tire_relaxation",
+            "first-order tire force lag with a relaxation length",
+            "tire carcass deflection before the contact patch slides (Pacejka ch. 7)",
+            (_switch("tire_relaxation", "tire force lag on"),),
+        ),
+        (
+            "terrain_grade",
+            "road grade along the path (> 0 uphill): gravity along body x and a reduced normal load",
+            "driving on a slope the nominal model takes as level",
+            (_scalar("terrain_grade", "rad", 0.0, (-0.3, 0.3), 0.05, "grade angle γ"),),
+        ),
+    ),
+)
+
+
+# ---------------------------------------------------------------------------
+# Rover
+# ---------------------------------------------------------------------------
+
+_ROVER_WHEELS = ("rear", "middle", "front")
+
+#: Rover soil-change parameters (scale factors / change of the scenario soil): name → soil field, kind.
+_SOIL_CHANGE = {
+    "soil_change_cohesion_scale": ("cohesion", "scale"),
+    "soil_change_friction_angle_change": ("friction_angle", "add"),
+    "soil_change_modulus_scale": (("pressure_sinkage_k1", "pressure_sinkage_k2"), "scale"),
+    "soil_change_shear_modulus_scale": ("shear_deformation_modulus", "scale"),
+}
+
+_ROVER = _table(
+    "rover",
+    (
+        (
+            "vertical_velocity",
+            "short-wavelength undulation A (1 − cos(2π x/λ)) added to the wheel-centre path",
+            "terrain roughness/curvature moving the body vertically, breaking the estimators' ż0^R ≈ 0",
+            (
+                _scalar(
+                    "path_undulation_amplitude",
+                    "m",
+                    0.0,
+                    (0.0, 0.01),
+                    0.003,
+                    "undulation amplitude A (half the peak-to-peak)",
+                ),
+                _scalar("path_undulation_wavelength", "m", 0.5, (0.3, 3.0), 0.5, "undulation wavelength λ"),
+            ),
+        ),
+        (
+            "load_cell_bias",
+            "constant offset of each axial load cell F_L",
+            "load-cell zero drift (temperature, mounting preload)",
+            _components("load_cell_bias", _ROVER_WHEELS, "N", (-10.0, 10.0), 1.0, "axial load-cell bias"),
+        ),
+        (
+            "load_cell_crosstalk",
+            "each load-cell axis reads c times the other axis",
+            "imperfect decoupling / misalignment of the two-axis load cells",
+            (_scalar("load_cell_crosstalk", "–", 0.0, (-0.1, 0.1), 0.02, "cross-talk fraction c"),),
+        ),
+        (
+            "slip_sinkage",
+            "pressure–sinkage moduli fall with slip, k_eff = k/(1 + c |i|) (force-level, both soil models)",
+            "slip-sinkage: a slipping wheel digs in deeper than static pressure–sinkage predicts (Lyasko, Ding)",
+            (_scalar("slip_sinkage_coefficient", "–", 0.0, (0.0, 2.0), 0.5, "slip-sinkage coefficient c"),),
+        ),
+        (
+            "soil_change",
+            "beyond a wheel-centre x the wheels run on a changed soil (scales of the scenario soil)",
+            "patchy terrain: the soil parameters are not constant along the traverse",
+            (
+                _scalar("soil_change_distance", "m", 0.0, (0.0, 10.0), 1.0, "wheel-centre x of the change"),
+                EffectParameter(
+                    name="soil_change_cohesion_scale",
+                    unit="–",
+                    off=1.0,
+                    fit_range=(0.0, 5.0),
+                    typical=0.5,
+                    description="cohesion c after the change / before",
+                ),
+                EffectParameter(
+                    name="soil_change_friction_angle_change",
+                    unit="rad",
+                    off=0.0,
+                    fit_range=(-0.15, 0.15),
+                    typical=-0.05,
+                    description="internal friction angle φ after − before",
+                ),
+                EffectParameter(
+                    name="soil_change_modulus_scale",
+                    unit="–",
+                    off=1.0,
+                    fit_range=(0.6, 4.0),
+                    typical=0.7,
+                    description="pressure–sinkage moduli k1, k2 (k_c, k_φ) after / before",
+                ),
+                EffectParameter(
+                    name="soil_change_shear_modulus_scale",
+                    unit="–",
+                    off=1.0,
+                    fit_range=(0.25, 4.0),
+                    typical=1.5,
+                    description="shear deformation modulus K_s after / before",
+                ),
+            ),
+        ),
+        (
+            "grousers",
+            "soil sheared at the grouser tips: soil model for radius r_w + h_g at the tip slip",
+            "grousers (lugs) on the wheel rim, absent from the smooth rigid-wheel model",
+            (_scalar("grouser_height", "m", 0.0, (0.0, 0.02), 0.005, "grouser height h_g above the rim"),),
+        ),
+        (
+            "imu_bias",
+            "constant accelerometer (x, z) and pitch-gyro biases",
+            "IMU turn-on bias / drift and mounting misalignment",
+            (
+                *_components("imu_accel_bias", ("x", "z"), "m/s²", (-0.5, 0.5), 0.05, "accelerometer bias"),
+                _scalar("imu_gyro_bias", "rad/s", 0.0, (-0.05, 0.05), 0.005, "pitch-rate gyro bias"),
+            ),
+        ),
+        (
+            "sensor_delay",
+            "latency of every measured channel, rounded to whole 20 ms samples (effort not delayed)",
+            "sensor / bus latency relative to the commanded torques",
+            (_scalar("sensor_delay", "s", 0.0, (0.0, 0.2), 0.04, "latency"),),
+        ),
+    ),
+)
+
+
+# ---------------------------------------------------------------------------
+# Quarter car and LRV
+# ---------------------------------------------------------------------------
+
+
+def _quarter_car_table(vehicle: str, *, lrv: bool) -> Mapping[str, Effect]:
+    """Quarter car, or the LRV without the fields of ``LRV_IGNORED_EFFECTS`` (its simulator rejects them)."""
+    wheel_sensor = not lrv
+
+    def accel(field_body: str, field_wheel: str, **kwargs: Any) -> tuple[EffectParameter, ...]:
+        body = _scalar(field_body, **kwargs)
+        if not wheel_sensor:
+            return (body,)
+        return (body, _scalar(field_wheel, **kwargs))
+
+    effects: tuple[_Row, ...] = (
+        (
+            "accel_bias",
+            "constant bias of the vertical accelerometers (body" + (", wheel)" if wheel_sensor else ")"),
+            "accelerometer bias and tilt of the sensor axis from the vertical (≈ g α)",
+            accel(
+                "accel_bias_body",
+                "accel_bias_wheel",
+                unit="m/s²",
+                off=0.0,
+                fit_range=(-1.0, 1.0),
+                typical=0.1,
+                description="vertical accelerometer bias",
+            ),
+        ),
+        (
+            "accel_scale",
+            "accelerometer scale-factor error s (reading = (1 + s) × true)",
+            "accelerometer calibration / sensitivity error",
+            accel(
+                "accel_scale_body",
+                "accel_scale_wheel",
+                unit="–",
+                off=0.0,
+                fit_range=(-0.2, 0.2),
+                typical=0.03,
+                description="accelerometer scale-factor error s",
+            ),
+        ),
+        (
+            "sensor_delay",
+            "latency of the measured channels",
+            "sensor / bus / anti-alias-filter latency",
+            (_scalar("sensor_delay", "s", 0.0, (0.0, 0.05), 0.005, "latency"),),
+        ),
+        (
+            "nonlinear_soil",
+            "soil force F = k_s z0 (z/z0)^n about the static sinkage z0 instead of the linear k_s z",
+            "Bekker-type nonlinear pressure–sinkage (n ≠ 1)",
+            (_scalar("soil_exponent", "–", 1.0, (0.5, 2.0), 1.2, "soil exponent n (off at n = 1, the linear soil)"),),
+        ),
+        (
+            "wheel_liftoff",
+            "unilateral tire/soil contact: no tension, the wheel can leave the ground",
+            "wheel hop on rough ground (the nominal contact is bilateral)",
+            (_switch("wheel_liftoff", "unilateral contact on"),),
+        ),
+        (
+            "suspension_friction",
+            "Coulomb friction in the suspension",
+            "damper seal / linkage friction",
+            (_scalar("suspension_friction", "N", 0.0, (0.0, 500.0), 50.0, "friction force"),),
+        ),
+        (
+            "tire_damping",
+            "viscous damping in parallel with the tire/soil spring",
+            "tire carcass and soil damping",
+            (_scalar("tire_damping", "N·s/m", 0.0, (0.0, 5000.0), 500.0, "tire damping coefficient"),),
+        ),
+        (
+            "tire_enveloping",
+            "road input averaged over the tire contact length",
+            "tire enveloping: the contact patch filters short-wavelength roughness",
+            (_scalar("tire_contact_length", "m", 0.0, (0.0, 0.5), 0.15, "contact length"),),
+        ),
+        (
+            "sprung_mass_change",
+            "true sprung mass = nominal (1 + Δ)",
+            "payload / fuel / passengers differing from the nominal mass",
+            (_scalar("sprung_mass_change", "–", 0.0, (-0.3, 0.5), 0.1, "relative sprung-mass change Δ"),),
+        ),
+    )
+    if lrv:
+        ignored = set(LRV_IGNORED_EFFECTS)
+        effects = tuple(
+            (name, description, meaning, parameters)
+            for name, description, meaning, parameters in effects
+            if not all(p.field in ignored for p in parameters)
+        )
+    return _table(vehicle, effects)
+
+
+_CLASSES: dict[str, type] = {
+    "quarter_car": QuarterCarEffects,
+    "lrv": QuarterCarEffects,
+    "skid_steer": SkidSteerEffects,
+    "rover": RoverEffects,
+}
+
+CATALOGUE: Mapping[str, Mapping[str, Effect]] = MappingProxyType(
+    {
+        "quarter_car": _quarter_car_table("quarter_car", lrv=False),
+        "lrv": _quarter_car_table("lrv", lrv=True),
+        "skid_steer": _SKID_STEER,
+        "rover": _ROVER,
+    }
+)
+"""vehicle → effect name → :class:`Effect`."""
+
+VEHICLES: tuple[str, ...] = tuple(CATALOGUE)
+"""Vehicles of the catalogue."""
+
+
+def effects_class(vehicle: str) -> type:
+    """The plant's effects dataclass for ``vehicle``."""
+    if vehicle not in _CLASSES:
+        raise ValueError(f"unknown vehicle {vehicle!r}; known: {sorted(_CLASSES)}")
+    return _CLASSES[vehicle]
+
+
+# ---------------------------------------------------------------------------
+# Building
+# ---------------------------------------------------------------------------
+
+
+def _value(effect: Effect, parameter: EffectParameter, value: Any) -> float:
+    where = f"{effect.vehicle} effect {effect.name!r} parameter {parameter.name!r}"
+    if parameter.switch:
+        if isinstance(value, bool | np.bool_) or value in (0, 1):
+            return float(bool(value))
+        raise ValueError(f"{where}: a switch takes 0/1 or False/True, got {value!r}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where}: value must be a number, got {value!r}") from None
+    low, high = parameter.fit_range
+    if not (math.isfinite(number) and low <= number <= high):
+        raise ValueError(f"{where} ({parameter.unit}): value {value!r} outside the physical range [{low:g}, {high:g}]")
+    return number
+
+
+def _soil_after_change(soil: WongReeceSoil, values: Mapping[str, float]) -> WongReeceSoil:
+    changes: dict[str, float] = {}
+    for name, (fields, kind) in _SOIL_CHANGE.items():
+        for soil_field in (fields,) if isinstance(fields, str) else fields:
+            before = float(getattr(soil, soil_field))
+            changes[soil_field] = before * values[name] if kind == "scale" else before + values[name]
+    return dataclasses.replace(soil, **changes)
+
+
+def _fields(effect: Effect, values: Mapping[str, float], soil: WongReeceSoil) -> dict[str, Any]:
+    """Plant fields set by ``effect`` at ``values`` (every parameter present)."""
+    if effect.vehicle == "rover" and effect.name == "soil_change":
+        after = _soil_after_change(soil, values)
+        if after == soil:
+            return {"soil_change_distance": None, "soil_change_soil": None}
+        return {"soil_change_distance": values["soil_change_distance"], "soil_change_soil": after}
+    fields: dict[str, Any] = {}
+    tuples: dict[str, dict[int, float]] = {}
+    for p in effect.parameters:
+        if p.index is not None:
+            tuples.setdefault(p.field, {})[p.index] = values[p.name]
+        elif p.switch:
+            fields[p.field] = bool(values[p.name])
+        else:
+            fields[p.field] = values[p.name]
+    for name, components in tuples.items():
+        fields[name] = tuple(components[i] for i in range(len(components)))
+    return fields
+
+
+def effects_for(vehicle: str, effects: Mapping[str, Mapping[str, Any]], *, soil: WongReeceSoil = TABLE_II_SOIL) -> Any:
+    """The plant's effects object with the named effects on at the given parameter values.
+
+    Args:
+        vehicle: key of :data:`CATALOGUE`.
+        effects: {effect name: {parameter name: value}}; several effects
+            combine; a parameter left out takes its off value (a switch: on).
+        soil: rover only: the scenario soil the ``soil_change`` scales apply to.
+
+    Returns:
+        :class:`~vehicle_sim.plants.quarter_car.QuarterCarEffects`,
+        :class:`~vehicle_sim.plants.skid_steer.SkidSteerEffects` or
+        :class:`~vehicle_sim.plants.rover.RoverEffects`; all other effects off.
+
+    Raises:
+        ValueError: unknown vehicle, effect or parameter, or a value outside
+            its fit range (the message names vehicle, effect, parameter, value).
+    """
+    if vehicle not in CATALOGUE:
+        raise ValueError(f"unknown vehicle {vehicle!r}; known: {sorted(CATALOGUE)}")
+    table = CATALOGUE[vehicle]
+    fields: dict[str, Any] = {}
+    for name, given in effects.items():
+        if name not in table:
+            raise ValueError(f"unknown {vehicle} effect {name!r}; known: {sorted(table)}")
+        effect = table[name]
+        unknown = sorted(set(given) - set(effect.parameter_names))
+        if unknown:
+            raise ValueError(
+                f"{vehicle} effect {name!r}: unknown parameter(s) {unknown} (values "
+                f"{[given[k] for k in unknown]!r}); parameters: {list(effect.parameter_names)}"
+            )
+        values = {
+            p.name: _value(effect, p, given[p.name]) if p.name in given else (1.0 if p.switch else p.off)
+            for p in effect.parameters
+        }
+        fields.update(_fields(effect, values, soil))
+    return effects_class(vehicle)(**fields)
