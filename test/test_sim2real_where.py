@@ -1,0 +1,75 @@
+"""Sim-to-real 'where' diagnosis (issue 6) on short simulated bags."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from terrain_estimation.bag import AtomicBagWriter, read_bag
+from terrain_estimation.sim2real import Sim2RealError, diagnose_where
+from terrain_estimation.sim2real.report import write_report
+from vehicle_sim.tools.simulate import record
+
+DURATION = 4.0
+
+
+def _bag(tmp: Path, name: str, **overrides: object) -> Path:
+    out = tmp / name
+    record("quarter_car", DURATION, out, overrides={"seed": 3, "scenario.road_seed": 4, **overrides})
+    return out
+
+
+@pytest.fixture(scope="module")
+def nominal_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _bag(tmp_path_factory.mktemp("s2r"), "nominal")
+
+
+def test_nominal_has_no_significant_gap(nominal_bag: Path, tmp_path: Path) -> None:
+    report = diagnose_where(nominal_bag, "quarter_car")
+    assert report.verdict == "no significant gap", report.gaps
+    assert {ch.name for ch in report.channels} == {"body", "wheel"}
+    for ch in report.channels:
+        assert abs(ch.bias) < ch.bias_threshold
+        assert 0.7 < ch.rms_ratio < 1.25
+    assert report.nis is not None and report.nis.in_band
+    assert "estimator" in report.k_s_source
+    paths = write_report(report, tmp_path / "out")
+    assert {p.name for p in paths} >= {"where.md", "where.json", "psd_ratio_per_band.png", "residual_per_window.png"}
+    data = json.loads((tmp_path / "out" / "where.json").read_text())
+    assert data["verdict"] == "no significant gap"
+
+
+def test_body_accelerometer_bias_shows_on_the_body_mean(tmp_path: Path) -> None:
+    report = diagnose_where(_bag(tmp_path, "bias", **{"effects.accel_bias_body": 0.3}), "quarter_car")
+    body, wheel = report.channel("body"), report.channel("wheel")
+    assert body.bias == pytest.approx(0.3, abs=0.06)
+    assert abs(body.bias) > body.bias_threshold
+    assert abs(wheel.bias) < wheel.bias_threshold
+    assert any(g.startswith("body: bias") for g in report.gaps)
+    assert not any(b.gap for b in body.bands)
+
+
+def test_tire_enveloping_shows_in_the_high_band_of_the_wheel(tmp_path: Path) -> None:
+    report = diagnose_where(_bag(tmp_path, "envelope", **{"effects.tire_contact_length": 0.3}), "quarter_car")
+    wheel = report.channel("wheel")
+    high = [b for b in wheel.bands if b.f_low >= 16.0]
+    assert high and all(b.gap for b in high)
+    assert high[-1].measured_to_simulated < 0.5  # the tire filters the short wavelengths out
+    assert report.significant_gap
+
+
+def test_missing_topic_is_named(nominal_bag: Path, tmp_path: Path) -> None:
+    cut = tmp_path / "no_wheel_imu"
+    with AtomicBagWriter(cut) as writer:
+        for item in read_bag(nominal_bag):
+            if item.topic != "/quarter_car/imu/wheel":
+                writer.write(item.topic, item.msg, item.log_time_ns)
+    with pytest.raises(Sim2RealError, match="/quarter_car/imu/wheel"):
+        diagnose_where(cut, "quarter_car")
+
+
+def test_unsupported_vehicle() -> None:
+    with pytest.raises(Sim2RealError, match="skid_steer"):
+        diagnose_where("nowhere", "skid_steer")
