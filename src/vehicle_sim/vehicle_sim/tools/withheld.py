@@ -1,0 +1,625 @@
+"""Withheld-effect validation suite: blind "real" bags for the sim-to-real diagnosis (issue 6).
+
+``python -m vehicle_sim.tools.withheld --out DIR --per-effect N --seed S [--vehicle V ...] [--duration D]``
+
+Writes, for each vehicle (``quarter_car``, ``lrv``, ``skid_steer``, ``rover``):
+
+* ``N`` bags per effect of the catalogue (:data:`vehicle_sim.effects.CATALOGUE`),
+  the effect on at random magnitudes (below);
+* ``--controls`` bags (default ``N``) with no effect at all: the nominal
+  plant of the catalogue (every effect off; for the skid steer also
+  load-transfer dynamics and tire relaxation, which the simulator node
+  switches on by default);
+* ``--out-of-catalogue`` bags (default ``N`` × the number of kinds, cycling
+  through them) with an effect that is *not* in the catalogue
+  (:data:`OUT_OF_CATALOGUE`), applied to the messages after the adapter.
+
+Every bag is an ordinary contract bag, as a real robot records it
+(CONTRACT.md): the sensor topics of the vehicle's simulator adapter
+(:mod:`vehicle_sim.ros`), the same path as ``terrain-simulate``, but **no
+``ground_truth/*`` topics and no ``/clock``**, and every stamp shifted by a
+random start time (a real bag's stamps start at any value; here uniformly in
+[1.6e9, 1.8e9] s, whole nanoseconds; log time = header stamp). The vehicle's
+scenario varies too, so that the diagnosis cannot learn one scenario: quarter
+car and LRV: ISO 8608 road class (B, C, D or the meadow stand-in), road
+realisation and soil from a small set; skid steer: manoeuvre; rover: terrain.
+The noise seed is drawn per bag. Durations are drawn per bag (quarter car /
+LRV 10–20 s, skid steer 15–20 s, rover 30–60 s) unless ``--duration`` fixes
+them.
+
+Output layout::
+
+    DIR/manifest.json      what the diagnosis is given: id → vehicle, bag path
+    DIR/labels.json        the answers: NEVER to be read by the diagnosis
+    DIR/bags/<id>/         one rosbag2 (MCAP) bag per id
+
+Bag ids are 12 random hex digits (drawn from the seeded generator), so they
+carry nothing about the effect; the manifest is sorted by id. ``labels.json``
+holds per id the vehicle, the kind (``effect``, ``control`` or
+``out_of_catalogue``), the effect and its parameter values, the scenario, the
+noise seed, duration and start time: it is for the scorer only, which joins
+the diagnosis's output to it on the id. The generator and the diagnosis are
+separate code paths: the diagnosis gets only the manifest and the bags.
+
+How magnitudes are drawn (:func:`draw_parameter`)
+    For a continuous parameter with off value ``off``, typical value ``t``
+    and fit range [lo, hi], the typical deviation is d = |t − off|. The
+    deviation from ``off`` is drawn log-uniformly in
+    [d, min(3 d, room)] ("clearly visible" lower magnitude 1× typical,
+    upper 3× typical), where ``room`` is the distance from ``off`` to the
+    fit-range bound on the chosen side (a side is possible when its room is
+    at least d; if both are, the side is random — a random sign for the
+    symmetric ranges). The value is therefore inside the fit range and at
+    least d away from the off value. Switches are on. Two kinds of parameter
+    have no "magnitude" and are drawn otherwise (``rule`` in the labels):
+    a *shape* parameter whose typical equals its off value (the rover's
+    undulation wavelength) log-uniformly within a factor 2 of the typical,
+    clipped to the fit range; the rover's ``soil_change_distance`` (a
+    location) so that the front wheel (0.35 m ahead of the body at the
+    start) reaches the change after 15–60 % of the run's travel.
+
+Out-of-catalogue effects (:data:`OUT_OF_CATALOGUE`; applied to the adapter's
+messages, no plant change; sample time t from the start of the run)
+    ``imu_vibration``: an engine/drive-train vibration line
+    a sin(2π f t + φ) added to every measured accelerometer axis of the
+    vehicle's IMU(s) (quarter car/LRV z; skid steer x, y, z; rover x, z),
+    f uniform in [0.1, 0.4] × the IMU rate (below Nyquist), amplitude per
+    vehicle (quarter car/LRV 1–3 m/s², skid steer 0.3–1 m/s², rover
+    0.05–0.2 m/s²), random phase per axis.
+    ``accel_spikes``: outliers in one channel, the (body) IMU's z
+    accelerometer: each sample is hit with probability p ∈ [1 %, 3 %] by a
+    spike of random sign and magnitude uniform in the vehicle's range
+    (quarter car/LRV 5–15, skid steer 3–10, rover 0.3–1 m/s²).
+    ``channel_scale``: a scale error (reading × (1 + s), |s| ∈ [0.1, 0.3],
+    random sign) on a channel the catalogue has no scale effect for:
+    quarter car/LRV the profile sampler's elevation (``terrain/profile``
+    point.z), skid steer the yaw gyro (angular_velocity.z), rover the
+    velocimeter (twist.linear.x).
+
+Reproducible from ``--seed``: each vehicle has its own generator seeded from
+(seed, vehicle), so a subset of vehicles gives the same bags for those
+vehicles. Progress goes to stderr; ``--jobs`` simulates bags in parallel
+processes (same output).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import os
+import shutil
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from terrain_estimation.bag import AtomicBagWriter, BagError
+from terrain_estimation.params import ParameterError
+from terrain_estimation.ros.time import ns_to_stamp, stamp_to_ns
+from terrain_estimation.tools.estimate import topic_name
+from vehicle_sim.effects import CATALOGUE, EffectParameter, effects_for
+from vehicle_sim.ros.registry import get_simulator, simulator_parameters
+
+__all__ = [
+    "DURATIONS",
+    "OUT_OF_CATALOGUE",
+    "VEHICLES",
+    "BagPlan",
+    "draw_parameter",
+    "generate",
+    "main",
+    "plan_suite",
+    "write_bag",
+]
+
+VEHICLES: tuple[str, ...] = ("quarter_car", "lrv", "skid_steer", "rover")
+
+#: Default (min, max) duration (s) per vehicle.
+DURATIONS: Mapping[str, tuple[float, float]] = {
+    "quarter_car": (10.0, 20.0),
+    "lrv": (10.0, 20.0),
+    "skid_steer": (15.0, 20.0),
+    "rover": (30.0, 60.0),
+}
+
+#: Out-of-catalogue effects: name → description (module docstring).
+OUT_OF_CATALOGUE: Mapping[str, str] = {
+    "imu_vibration": "sinusoidal vibration line added to every measured accelerometer axis",
+    "accel_spikes": "random outliers (spikes) in the IMU's z accelerometer",
+    "channel_scale": "scale error on a channel without a catalogue scale effect",
+}
+
+#: Per-vehicle magnitudes of the out-of-catalogue effects (m/s²).
+_VIBRATION_AMPLITUDE = {"quarter_car": (1.0, 3.0), "lrv": (1.0, 3.0), "skid_steer": (0.3, 1.0), "rover": (0.05, 0.2)}
+_SPIKE_MAGNITUDE = {"quarter_car": (5.0, 15.0), "lrv": (5.0, 15.0), "skid_steer": (3.0, 10.0), "rover": (0.3, 1.0)}
+#: Channel of channel_scale: vehicle → (topic key of the adapter, description).
+_SCALE_CHANNEL = {
+    "quarter_car": ("profile", "terrain/profile point.z (profile sampler elevation)"),
+    "lrv": ("profile", "terrain/profile point.z (profile sampler elevation)"),
+    "skid_steer": ("imu", "imu angular_velocity.z (yaw gyro)"),
+    "rover": ("velocimeter", "velocimeter twist.linear.x"),
+}
+
+_ROADS = ("B", "C", "D", "meadow_c")
+_SOILS = {
+    "quarter_car": ("graneville_loam", "upland_sandy_loam", "north_gower_clayey_loam", "rubicon_sandy_loam"),
+    "lrv": ("graneville_loam", "upland_sandy_loam", "lete_sand", "lunar_regolith"),
+}
+_START_TIME_RANGE_S = (1.6e9, 1.8e9)
+#: Rover: wheel-centre x of the front wheel at the start (body at x = 0) (m).
+_ROVER_FRONT_WHEEL_X = 0.35
+_NOTE_LABELS = (
+    "Ground-truth labels of the withheld-effect suite: for the scorer only. "
+    "The sim-to-real diagnosis must NEVER read this file; it is given manifest.json and the bags."
+)
+_NOTE_MANIFEST = "What the diagnosis is given: bag id -> vehicle and bag path. Labels are withheld."
+
+
+# ---------------------------------------------------------------------------
+# Drawing
+# ---------------------------------------------------------------------------
+
+
+def draw_parameter(parameter: EffectParameter, rng: np.random.Generator) -> tuple[float, dict[str, Any]]:
+    """A random value of one catalogue parameter and how it was drawn.
+
+    Returns:
+        (value, rule): ``rule["rule"]`` is ``"switch"``, ``"magnitude"`` (with
+        ``lower``: the smallest deviation from off, and ``upper``) or
+        ``"shape"``. See the module docstring.
+    """
+    if parameter.switch:
+        return 1.0, {"rule": "switch"}
+    lo, hi = parameter.fit_range
+    off, typical = parameter.off, parameter.typical
+    d = abs(typical - off)
+    if d == 0.0:
+        low = max(lo, typical / 2.0) if typical > 0 else lo
+        high = min(hi, typical * 2.0) if typical > 0 else hi
+        if low > 0:
+            value = float(math.exp(rng.uniform(math.log(low), math.log(high))))
+        else:
+            value = float(rng.uniform(low, high))
+        return value, {"rule": "shape", "range": [low, high]}
+    rooms = {+1: hi - off, -1: off - lo}
+    sides = [s for s in (+1, -1) if rooms[s] >= d * (1.0 - 1e-12)]
+    if not sides:
+        raise ValueError(
+            f"parameter {parameter.name!r}: typical deviation {d:g} leaves no room in {parameter.fit_range}"
+        )
+    side = sides[int(rng.integers(len(sides)))] if len(sides) > 1 else sides[0]
+    upper = min(3.0 * d, rooms[side])
+    deviation = float(math.exp(rng.uniform(math.log(d), math.log(upper)))) if upper > d else d
+    value = float(np.clip(off + side * deviation, lo, hi))
+    return value, {"rule": "magnitude", "lower": d, "upper": upper}
+
+
+@dataclass(frozen=True)
+class BagPlan:
+    """Everything needed to write one bag (picklable: sent to worker processes)."""
+
+    id: str
+    vehicle: str
+    kind: str  # "effect" | "control" | "out_of_catalogue"
+    effect: str | None
+    parameters: dict[str, float]
+    draw: dict[str, dict[str, Any]]
+    out_of_catalogue: str | None
+    ooc_parameters: dict[str, Any]
+    scenario: dict[str, Any]
+    seed: int
+    duration: float
+    start_time_ns: int
+    path: str = field(default="")
+
+    def label(self) -> dict[str, Any]:
+        return {
+            "vehicle": self.vehicle,
+            "kind": self.kind,
+            "effect": self.effect,
+            "parameters": self.parameters,
+            "draw": self.draw,
+            "out_of_catalogue": self.out_of_catalogue,
+            "out_of_catalogue_parameters": self.ooc_parameters,
+            "scenario": self.scenario,
+            "seed": self.seed,
+            "duration": self.duration,
+            "start_time_ns": self.start_time_ns,
+            "bag": self.path,
+        }
+
+
+def _vehicle_rng(seed: int, vehicle: str) -> np.random.Generator:
+    tag = int.from_bytes(hashlib.sha256(vehicle.encode()).digest()[:4], "little")
+    return np.random.default_rng([int(seed), tag])
+
+
+def _scenario(vehicle: str, rng: np.random.Generator) -> dict[str, Any]:
+    if vehicle in ("quarter_car", "lrv"):
+        soils = _SOILS[vehicle]
+        return {
+            "scenario.road": _ROADS[int(rng.integers(len(_ROADS)))],
+            "scenario.road_seed": int(rng.integers(2**31 - 1)),
+            "scenario.soils": [soils[int(rng.integers(len(soils)))]],
+            "scenario.soil_starts": [0.0],
+        }
+    if vehicle == "skid_steer":
+        from vehicle_sim.plants.skid_steer import MANOEUVRES
+
+        names = sorted(MANOEUVRES)
+        return {"scenario.manoeuvre": names[int(rng.integers(len(names)))]}
+    if vehicle == "rover":
+        from vehicle_sim.plants.rover import TERRAINS
+
+        names = sorted(TERRAINS)
+        return {"scenario.terrain": names[int(rng.integers(len(names)))]}
+    raise ValueError(f"unknown vehicle {vehicle!r}; known: {', '.join(VEHICLES)}")
+
+
+def _draw_effect(
+    vehicle: str, effect: str, duration: float, desired_speed: float, rng: np.random.Generator
+) -> tuple[dict[str, float], dict[str, dict[str, Any]]]:
+    values: dict[str, float] = {}
+    rules: dict[str, dict[str, Any]] = {}
+    for p in CATALOGUE[vehicle][effect].parameters:
+        if vehicle == "rover" and p.name == "soil_change_distance":
+            travel = desired_speed * duration
+            value = _ROVER_FRONT_WHEEL_X + float(rng.uniform(0.15, 0.6)) * travel
+            value = float(np.clip(value, *p.fit_range))
+            values[p.name], rules[p.name] = value, {"rule": "location", "travel": travel}
+            continue
+        values[p.name], rules[p.name] = draw_parameter(p, rng)
+    return values, rules
+
+
+def _draw_ooc(vehicle: str, name: str, rng: np.random.Generator) -> dict[str, Any]:
+    if name == "imu_vibration":
+        lo, hi = _VIBRATION_AMPLITUDE[vehicle]
+        return {
+            "amplitude": float(rng.uniform(lo, hi)),
+            "frequency_fraction_of_rate": float(rng.uniform(0.1, 0.4)),
+            "phases": [float(v) for v in rng.uniform(0.0, 2.0 * math.pi, 3)],
+        }
+    if name == "accel_spikes":
+        lo, hi = _SPIKE_MAGNITUDE[vehicle]
+        return {
+            "probability": float(rng.uniform(0.01, 0.03)),
+            "magnitude_range": [lo, hi],
+            "noise_seed": int(rng.integers(2**31 - 1)),
+        }
+    if name == "channel_scale":
+        magnitude = float(rng.uniform(0.1, 0.3))
+        sign = 1.0 if rng.random() < 0.5 else -1.0
+        return {"scale_error": sign * magnitude, "channel": _SCALE_CHANNEL[vehicle][1]}
+    raise ValueError(f"unknown out-of-catalogue effect {name!r}; known: {', '.join(OUT_OF_CATALOGUE)}")
+
+
+def plan_suite(
+    seed: int,
+    vehicles: Sequence[str] = VEHICLES,
+    *,
+    per_effect: int,
+    controls: int | None = None,
+    out_of_catalogue: int | None = None,
+    duration: float | None = None,
+    effects: Sequence[str] | None = None,
+) -> list[BagPlan]:
+    """Draw the whole suite (no simulation): one :class:`BagPlan` per bag, in generation order.
+
+    Args:
+        seed: master seed.
+        vehicles: vehicles to include.
+        per_effect: bags per catalogue effect.
+        controls: no-effect bags per vehicle (default ``per_effect``).
+        out_of_catalogue: out-of-catalogue bags per vehicle, cycling through
+            :data:`OUT_OF_CATALOGUE` (default ``per_effect`` × their number).
+        duration: fixed duration (s) of every bag (default: drawn, :data:`DURATIONS`).
+        effects: restrict to these catalogue effects (default: all; unknown
+            names of a vehicle are an error only if no vehicle has them).
+    """
+    if per_effect < 0:
+        raise ValueError(f"per-effect must be >= 0, got {per_effect}")
+    n_controls = per_effect if controls is None else controls
+    n_ooc = per_effect * len(OUT_OF_CATALOGUE) if out_of_catalogue is None else out_of_catalogue
+    if n_controls < 0 or n_ooc < 0:
+        raise ValueError(f"controls and out-of-catalogue counts must be >= 0, got {n_controls}, {n_ooc}")
+    if duration is not None and not duration > 0:
+        raise ValueError(f"duration must be > 0 s, got {duration}")
+    for v in vehicles:
+        if v not in VEHICLES:
+            raise ValueError(f"unknown vehicle {v!r}; known: {', '.join(VEHICLES)}")
+    if effects is not None:
+        known = {name for v in vehicles for name in CATALOGUE[v]}
+        unknown = sorted(set(effects) - known)
+        if unknown:
+            raise ValueError(f"unknown effect(s) {unknown} for vehicles {list(vehicles)}; known: {sorted(known)}")
+    plans: list[BagPlan] = []
+    ids: set[str] = set()
+    ooc_names = tuple(OUT_OF_CATALOGUE)
+    for vehicle in vehicles:
+        rng = _vehicle_rng(seed, vehicle)
+        desired_speed = 0.02
+        if vehicle == "rover":
+            entry = get_simulator("rover")
+            desired_speed = float(simulator_parameters(entry)["scenario.desired_speed"])
+        jobs: list[tuple[str, str | None, str | None]] = []
+        for name in CATALOGUE[vehicle]:
+            if effects is None or name in effects:
+                jobs += [("effect", name, None)] * per_effect
+        jobs += [("control", None, None)] * n_controls
+        jobs += [("out_of_catalogue", None, ooc_names[i % len(ooc_names)]) for i in range(n_ooc)]
+        for kind, effect, ooc in jobs:
+            bag_id = rng.bytes(6).hex()
+            while bag_id in ids:
+                bag_id = rng.bytes(6).hex()
+            ids.add(bag_id)
+            lo, hi = DURATIONS[vehicle]
+            length = float(duration) if duration is not None else round(float(rng.uniform(lo, hi)), 2)
+            scenario = _scenario(vehicle, rng)
+            bag_seed = int(rng.integers(2**31 - 1))
+            start = int(rng.integers(int(_START_TIME_RANGE_S[0] * 1e9), int(_START_TIME_RANGE_S[1] * 1e9)))
+            values: dict[str, float] = {}
+            rules: dict[str, dict[str, Any]] = {}
+            ooc_values: dict[str, Any] = {}
+            if effect is not None:
+                values, rules = _draw_effect(vehicle, effect, length, desired_speed, rng)
+            if ooc is not None:
+                ooc_values = _draw_ooc(vehicle, ooc, rng)
+            plans.append(
+                BagPlan(
+                    id=bag_id,
+                    vehicle=vehicle,
+                    kind=kind,
+                    effect=effect,
+                    parameters=values,
+                    draw=rules,
+                    out_of_catalogue=ooc,
+                    ooc_parameters=ooc_values,
+                    scenario=scenario,
+                    seed=bag_seed,
+                    duration=length,
+                    start_time_ns=start,
+                    path=f"bags/{bag_id}",
+                )
+            )
+    return plans
+
+
+# ---------------------------------------------------------------------------
+# Simulating
+# ---------------------------------------------------------------------------
+
+
+def _install_effects(adapter: Any, vehicle: str, plan: BagPlan) -> None:
+    """Replace the adapter's plant effects by the catalogue's (nominal + the plan's effect) and rebuild its simulator.
+
+    The adapters expose only some effects as parameters (the rover none of
+    slip-sinkage, grousers, path undulation or the soil-change scales), so the
+    plant's effects object is built with :func:`vehicle_sim.effects.effects_for`
+    and the simulator rebuilt the way the adapter builds it.
+    """
+    named = {plan.effect: plan.parameters} if plan.effect is not None else {}
+    if vehicle in ("quarter_car", "lrv"):
+        from vehicle_sim.plants.quarter_car import QuarterCarSimulator
+
+        adapter.scenario = replace(adapter.scenario, effects=effects_for(vehicle, named))
+        adapter.simulator = QuarterCarSimulator(adapter.vehicle, adapter.scenario, plan.seed)
+    elif vehicle == "skid_steer":
+        from vehicle_sim.plants.skid_steer import SkidSteerSimulator
+
+        adapter.scenario = replace(adapter.scenario, effects=effects_for(vehicle, named))
+        adapter.simulator = SkidSteerSimulator(adapter.scenario, plan.seed)
+    elif vehicle == "rover":
+        from vehicle_sim.plants.rover import RoverSimulator
+
+        effects = effects_for(vehicle, named, soil=adapter.scenario.soil)
+        adapter.scenario = replace(adapter.scenario, effects=effects)
+        adapter.simulator = RoverSimulator(adapter.scenario)
+    else:
+        raise ValueError(f"unknown vehicle {vehicle!r}")
+
+
+_AXES = ("x", "y", "z")
+
+
+def _ooc_transform(plan: BagPlan, imu_keys: Sequence[str], rate: float) -> Callable[[str, Any, float], None]:
+    """In-place message transform of the plan's out-of-catalogue effect (identity if none)."""
+    name, values = plan.out_of_catalogue, plan.ooc_parameters
+    if name is None:
+        return lambda key, msg, t: None
+    if name == "imu_vibration":
+        amplitude = float(values["amplitude"])
+        omega = 2.0 * math.pi * float(values["frequency_fraction_of_rate"]) * rate
+        phases = values["phases"]
+
+        def vibrate(key: str, msg: Any, t: float) -> None:
+            if key not in imu_keys:
+                return
+            acc, cov = msg.linear_acceleration, msg.linear_acceleration_covariance
+            for i, axis in enumerate(_AXES):
+                if cov[4 * i] > 0.0:
+                    setattr(acc, axis, getattr(acc, axis) + amplitude * math.sin(omega * t + phases[i]))
+
+        return vibrate
+    if name == "accel_spikes":
+        rng = np.random.default_rng(int(values["noise_seed"]))
+        p = float(values["probability"])
+        lo, hi = values["magnitude_range"]
+        target = imu_keys[0]
+
+        def spike(key: str, msg: Any, t: float) -> None:
+            if key != target:
+                return
+            hit, magnitude, sign = rng.random(), rng.uniform(lo, hi), rng.random() < 0.5
+            if hit < p:
+                msg.linear_acceleration.z += magnitude if sign else -magnitude
+
+        return spike
+    if name == "channel_scale":
+        factor = 1.0 + float(values["scale_error"])
+        channel_key = _SCALE_CHANNEL[plan.vehicle][0]
+
+        def scale(key: str, msg: Any, t: float) -> None:
+            if key != channel_key:
+                return
+            if plan.vehicle in ("quarter_car", "lrv"):
+                msg.point.z *= factor
+            elif plan.vehicle == "skid_steer":
+                msg.angular_velocity.z *= factor
+            else:
+                msg.twist.linear.x *= factor
+
+        return scale
+    raise ValueError(f"unknown out-of-catalogue effect {name!r}")
+
+
+def write_bag(plan: BagPlan, out: str | Path) -> dict[str, Any]:
+    """Simulate ``plan`` and write its bag to ``out/plan.path``; return timing and message counts."""
+    started = time.monotonic()
+    entry = get_simulator(plan.vehicle)
+    overrides: dict[str, Any] = {**plan.scenario, "seed": plan.seed}
+    if plan.vehicle in ("skid_steer", "rover"):
+        overrides["scenario.duration"] = plan.duration + 1.0  # margin: the loop stops at plan.duration
+    values = simulator_parameters(entry, None, overrides)
+    adapter = entry.make_adapter(values, entry.namespace)
+    _install_effects(adapter, plan.vehicle, plan)
+    keep = {
+        spec.key: topic_name(entry.namespace, spec.topic)
+        for spec in adapter.outputs
+        if spec.kind == "sensor" and not spec.topic.startswith("ground_truth")
+    }
+    imu_keys = [spec.key for spec in adapter.outputs if spec.key in keep and spec.topic.startswith("imu")]
+    transform = _ooc_transform(plan, imu_keys, 1.0 / float(adapter.period))
+    offset = plan.start_time_ns
+    with AtomicBagWriter(Path(out) / plan.path) as writer:
+        t = 0.0
+        while t < plan.duration - 1e-9:
+            t, messages = adapter.step()
+            for key, msg in messages:
+                if key not in keep:
+                    continue
+                stamp = stamp_to_ns(msg.header.stamp)
+                transform(key, msg, stamp * 1e-9)
+                stamp += offset
+                msg.header.stamp = ns_to_stamp(stamp)
+                writer.write(keep[key], msg, stamp)
+        count = writer.count
+    return {"id": plan.id, "messages": count, "seconds": time.monotonic() - started}
+
+
+def _write_job(args: tuple[BagPlan, str]) -> dict[str, Any]:
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    return write_bag(*args)
+
+
+def _write_json(path: Path, data: Any) -> None:
+    tmp = path.with_name(f".{path.name}.partial")
+    tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+    tmp.replace(path)
+
+
+def generate(
+    out: str | Path,
+    plans: Sequence[BagPlan],
+    *,
+    jobs: int = 1,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Write the bags of ``plans``, ``manifest.json`` and ``labels.json`` under ``out``.
+
+    Existing ``out/bags`` is replaced. Returns a summary (bag count, seconds).
+    """
+    root = Path(out)
+    root.mkdir(parents=True, exist_ok=True)
+    bags = root / "bags"
+    if bags.exists():
+        shutil.rmtree(bags)
+    for name in ("manifest.json", "labels.json"):
+        (root / name).unlink(missing_ok=True)
+    started = time.monotonic()
+    total = len(plans)
+
+    def report(i: int, plan: BagPlan, result: dict[str, Any]) -> None:
+        if progress:
+            print(
+                f"[{i}/{total}] {plan.vehicle} {plan.id}: {plan.duration:g} s simulated, "
+                f"{result['messages']} messages in {result['seconds']:.1f} s",
+                file=sys.stderr,
+            )
+
+    if jobs <= 1:
+        for i, plan in enumerate(plans, 1):
+            report(i, plan, write_bag(plan, root))
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            for i, (plan, result) in enumerate(
+                zip(plans, pool.map(_write_job, [(p, str(root)) for p in plans]), strict=True), 1
+            ):
+                report(i, plan, result)
+    manifest = {
+        "note": _NOTE_MANIFEST,
+        "bags": [{"id": p.id, "vehicle": p.vehicle, "bag": p.path} for p in sorted(plans, key=lambda p: p.id)],
+    }
+    labels = {"note": _NOTE_LABELS, "labels": {p.id: p.label() for p in sorted(plans, key=lambda p: p.id)}}
+    _write_json(root / "manifest.json", manifest)
+    _write_json(root / "labels.json", labels)
+    return {"bags": total, "seconds": time.monotonic() - started}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m vehicle_sim.tools.withheld", description=(__doc__ or "").splitlines()[0]
+    )
+    parser.add_argument(
+        "--out", required=True, help="output directory (its bags/, manifest.json, labels.json are replaced)"
+    )
+    parser.add_argument("--per-effect", type=int, required=True, help="bags per catalogue effect and vehicle")
+    parser.add_argument("--seed", type=int, required=True, help="master seed (never given to the diagnosis)")
+    parser.add_argument("--vehicle", action="append", choices=VEHICLES, help="vehicle(s) (default: all)")
+    parser.add_argument("--duration", type=float, help="fixed duration of every bag (s); default: drawn per vehicle")
+    parser.add_argument("--controls", type=int, help="no-effect bags per vehicle (default: --per-effect)")
+    parser.add_argument(
+        "--out-of-catalogue",
+        type=int,
+        help=f"out-of-catalogue bags per vehicle, cycling {', '.join(OUT_OF_CATALOGUE)} (default: 3 x --per-effect)",
+    )
+    parser.add_argument("--effect", action="append", help="only these catalogue effects (default: all)")
+    parser.add_argument("--jobs", type=int, default=1, help="parallel simulation processes (default 1)")
+    args = parser.parse_args(argv)
+    vehicles = tuple(dict.fromkeys(args.vehicle)) if args.vehicle else VEHICLES
+    try:
+        plans = plan_suite(
+            args.seed,
+            vehicles,
+            per_effect=args.per_effect,
+            controls=args.controls,
+            out_of_catalogue=args.out_of_catalogue,
+            duration=args.duration,
+            effects=args.effect,
+        )
+        if not plans:
+            raise ValueError("nothing to generate (all counts are 0)")
+        print(f"withheld: generating {len(plans)} bags for {', '.join(vehicles)} in {args.out}", file=sys.stderr)
+        summary = generate(args.out, plans, jobs=max(1, args.jobs))
+    except (BagError, ParameterError, ValueError, OSError) as exc:
+        print(f"withheld: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("withheld: interrupted; the suite is incomplete", file=sys.stderr)
+        return 130
+    print(
+        f"wrote {summary['bags']} bags in {summary['seconds']:.1f} s to {args.out} "
+        f"(manifest.json for the diagnosis, labels.json for the scorer only)"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
