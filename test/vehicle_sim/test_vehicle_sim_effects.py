@@ -360,3 +360,25 @@ def test_rover_effect_validation():
         RoverScenario(effects=RoverEffects(path_undulation_amplitude=0.05, path_undulation_wavelength=0.2))
     # The catalogue's extreme corner is a valid scenario.
     RoverScenario(effects=RoverEffects(path_undulation_amplitude=0.01, path_undulation_wavelength=0.3))
+
+
+def test_rover_sim_node_exposes_the_plant_effects():
+    """Every RoverEffects field the simulator node can set is a parameter that reaches the plant."""
+    from vehicle_sim.plants.rover import RoverEffects
+    from vehicle_sim.ros.rover import make_scenario, specs_for
+
+    specs = {spec.name: spec for spec in specs_for("rover")}
+    values = {name: spec.default for name, spec in specs.items()}
+    assert make_scenario(values).effects == RoverEffects()
+    on = {
+        "effects.slip_sinkage_coefficient": 0.5,
+        "effects.grouser_height": 0.005,
+        "effects.path_undulation_amplitude": 0.003,
+        "effects.path_undulation_wavelength": 0.8,
+        "effects.load_cell_crosstalk": 0.02,
+        "effects.imu_gyro_bias": 0.001,
+    }
+    effects = make_scenario(values | on).effects
+    for key, value in on.items():
+        assert specs[key].description
+        assert getattr(effects, key.removeprefix("effects.")) == value
