@@ -65,7 +65,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Literal
@@ -745,6 +745,55 @@ class SimulationResult:
 # ---------------------------------------------------------------------------
 
 
+def _rk4_two_dof(
+    accelerations: Callable[[float, float, float, float, int], tuple[float, float]],
+    state: tuple[float, float, float, float],
+    substeps: int,
+    dt: float,
+) -> tuple[float, float, float, float]:
+    """Classical RK4 of (y1, v1, y2, v2) over ``substeps`` steps of ``dt``.
+
+    ``accelerations(y1, v1, y2, v2, j)`` gives (ÿ1, ÿ2) with the road and
+    stiffness at half-step index ``j`` (2i, 2i + 1, 2i + 2 for step i).
+    """
+    y1, v1, y2, v2 = state
+    half, sixth = 0.5 * dt, dt / 6.0
+    for i in range(substeps):
+        j = 2 * i
+        a1, b1 = accelerations(y1, v1, y2, v2, j)
+        p1, q1 = v1 + half * a1, v2 + half * b1
+        a2, b2 = accelerations(y1 + half * v1, p1, y2 + half * v2, q1, j + 1)
+        p2, q2 = v1 + half * a2, v2 + half * b2
+        a3, b3 = accelerations(y1 + half * p1, p2, y2 + half * q1, q2, j + 1)
+        p3, q3 = v1 + dt * a3, v2 + dt * b3
+        a4, b4 = accelerations(y1 + dt * p2, p3, y2 + dt * q2, q3, j + 2)
+        y1 += sixth * (v1 + 2.0 * p1 + 2.0 * p2 + p3)
+        y2 += sixth * (v2 + 2.0 * q1 + 2.0 * q2 + q3)
+        v1 += sixth * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+        v2 += sixth * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+    return y1, v1, y2, v2
+
+
+def _rk4_one_dof(
+    acceleration: Callable[[float, float, int], float], state: tuple[float, float], substeps: int, dt: float
+) -> tuple[float, float]:
+    """Classical RK4 of (y1, v1); ``acceleration(y1, v1, j)`` as in :func:`_rk4_two_dof`."""
+    y1, v1 = state
+    half, sixth = 0.5 * dt, dt / 6.0
+    for i in range(substeps):
+        j = 2 * i
+        a1 = acceleration(y1, v1, j)
+        p1 = v1 + half * a1
+        a2 = acceleration(y1 + half * v1, p1, j + 1)
+        p2 = v1 + half * a2
+        a3 = acceleration(y1 + half * p1, p2, j + 1)
+        p3 = v1 + dt * a3
+        a4 = acceleration(y1 + dt * p2, p3, j + 2)
+        y1 += sixth * (v1 + 2.0 * p1 + 2.0 * p2 + p3)
+        v1 += sixth * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+    return y1, v1
+
+
 def _advance_two_dof(
     state: tuple[float, float, float, float],
     road: list[float],
@@ -760,30 +809,14 @@ def _advance_two_dof(
     k, c = vehicle.suspension_stiffness, vehicle.suspension_damping
     floor = -static_load
 
-    def accelerations(y1: float, v1: float, y2: float, v2: float, h: float, kt: float):
+    def accelerations(y1: float, v1: float, y2: float, v2: float, j: int) -> tuple[float, float]:
         suspension = k * (y2 - y1) + c * (v2 - v1)
-        ground = kt * (h - y2)
+        ground = stiffness[j] * (road[j] - y2)
         if liftoff and ground < floor:
             ground = floor
         return suspension / m1, (ground - suspension) / m2
 
-    y1, v1, y2, v2 = state
-    half, sixth = 0.5 * dt, dt / 6.0
-    for i in range(substeps):
-        j = 2 * i
-        a1, b1 = accelerations(y1, v1, y2, v2, road[j], stiffness[j])
-        p1, q1 = v1 + half * a1, v2 + half * b1
-        h_mid, kt_mid = road[j + 1], stiffness[j + 1]
-        a2, b2 = accelerations(y1 + half * v1, p1, y2 + half * v2, q1, h_mid, kt_mid)
-        p2, q2 = v1 + half * a2, v2 + half * b2
-        a3, b3 = accelerations(y1 + half * p1, p2, y2 + half * q1, q2, h_mid, kt_mid)
-        p3, q3 = v1 + dt * a3, v2 + dt * b3
-        a4, b4 = accelerations(y1 + dt * p2, p3, y2 + dt * q2, q3, road[j + 2], stiffness[j + 2])
-        y1 += sixth * (v1 + 2.0 * p1 + 2.0 * p2 + p3)
-        y2 += sixth * (v2 + 2.0 * q1 + 2.0 * q2 + q3)
-        v1 += sixth * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-        v2 += sixth * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
-    return y1, v1, y2, v2
+    return _rk4_two_dof(accelerations, state, substeps, dt)
 
 
 def _lrv_ground_force(
@@ -816,20 +849,7 @@ def _advance_lrv(
             ground = floor
         return (ground + skyhook) / m
 
-    y1, v1 = state
-    half, sixth = 0.5 * dt, dt / 6.0
-    for i in range(substeps):
-        j = 2 * i
-        a1 = acceleration(y1, v1, j)
-        p1 = v1 + half * a1
-        a2 = acceleration(y1 + half * v1, p1, j + 1)
-        p2 = v1 + half * a2
-        a3 = acceleration(y1 + half * p1, p2, j + 1)
-        p3 = v1 + dt * a3
-        a4 = acceleration(y1 + dt * p2, p3, j + 2)
-        y1 += sixth * (v1 + 2.0 * p1 + 2.0 * p2 + p3)
-        v1 += sixth * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-    return y1, v1
+    return _rk4_one_dof(acceleration, state, substeps, dt)
 
 
 def _bekker_chain_force(deflection: float, series_stiffness: float, k_s: float, load: float, n: float) -> float:
@@ -949,22 +969,7 @@ def _advance_two_dof_effects(
             ground = floor
         return suspension / m1, (ground - suspension) / m2
 
-    y1, v1, y2, v2 = state
-    half, sixth = 0.5 * dt, dt / 6.0
-    for i in range(substeps):
-        j = 2 * i
-        a1, b1 = accelerations(y1, v1, y2, v2, j)
-        p1, q1 = v1 + half * a1, v2 + half * b1
-        a2, b2 = accelerations(y1 + half * v1, p1, y2 + half * v2, q1, j + 1)
-        p2, q2 = v1 + half * a2, v2 + half * b2
-        a3, b3 = accelerations(y1 + half * p1, p2, y2 + half * q1, q2, j + 1)
-        p3, q3 = v1 + dt * a3, v2 + dt * b3
-        a4, b4 = accelerations(y1 + dt * p2, p3, y2 + dt * q2, q3, j + 2)
-        y1 += sixth * (v1 + 2.0 * p1 + 2.0 * p2 + p3)
-        y2 += sixth * (v2 + 2.0 * q1 + 2.0 * q2 + q3)
-        v1 += sixth * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-        v2 += sixth * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
-    return y1, v1, y2, v2
+    return _rk4_two_dof(accelerations, state, substeps, dt)
 
 
 def _lrv_forces(
@@ -1012,20 +1017,7 @@ def _advance_lrv_effects(
             ground = floor
         return (ground + skyhook) / m
 
-    y1, v1 = state
-    half, sixth = 0.5 * dt, dt / 6.0
-    for i in range(substeps):
-        j = 2 * i
-        a1 = acceleration(y1, v1, j)
-        p1 = v1 + half * a1
-        a2 = acceleration(y1 + half * v1, p1, j + 1)
-        p2 = v1 + half * a2
-        a3 = acceleration(y1 + half * p1, p2, j + 1)
-        p3 = v1 + dt * a3
-        a4 = acceleration(y1 + dt * p2, p3, j + 2)
-        y1 += sixth * (v1 + 2.0 * p1 + 2.0 * p2 + p3)
-        v1 += sixth * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-    return y1, v1
+    return _rk4_one_dof(acceleration, state, substeps, dt)
 
 
 # ---------------------------------------------------------------------------
