@@ -137,9 +137,10 @@ def test_sensor_delay_shifts_the_accelerometers_against_profile_and_joints():
     scenario = quiet(profile=ROAD_D)
     nominal = simulate(QC, scenario, 3.0, seed=1)
     delayed = simulate(QC, replace(scenario, effects=QuarterCarEffects(sensor_delay=0.03)), 3.0, seed=1)
-    # Whole periods: an exact shift; the t = 0 reading fills the start.
-    np.testing.assert_allclose(delayed.body_accel_z[3:], nominal.body_accel_z[:-3], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(delayed.wheel_accel_z[3:], nominal.wheel_accel_z[:-3], rtol=0, atol=1e-12)
+    # Whole periods: an exact shift (to rounding: the integrator's acceleration, not the truth's
+    # arithmetic); the t = 0 reading fills the start.
+    np.testing.assert_allclose(delayed.body_accel_z[3:], nominal.body_accel_z[:-3], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(delayed.wheel_accel_z[3:], nominal.wheel_accel_z[:-3], rtol=0, atol=1e-9)
     np.testing.assert_allclose(delayed.body_accel_z[:3], STANDARD_GRAVITY, atol=1e-12)
     assert_same_run(nominal, delayed, sensors=False)
     # The cross-correlation with the undelayed reading peaks at the delay.
@@ -148,10 +149,16 @@ def test_sensor_delay_shifts_the_accelerometers_against_profile_and_joints():
     lags = np.arange(-10, 11)
     xcorr = [np.dot(a[max(0, -k) : a.size - max(0, k)], b[max(0, k) : b.size - max(0, -k)]) for k in lags]
     assert lags[int(np.argmax(xcorr))] == 3
-    # A fractional delay interpolates linearly between the neighbouring samples.
+    # A delay that is not a whole sensor period is a true time shift (on the 1 ms integration grid),
+    # not an interpolation between sensor samples: 25 ms late at 100 Hz reads what a 200 Hz sensor
+    # of the undelayed run reads 5 of its samples earlier.
     half = simulate(QC, replace(scenario, effects=QuarterCarEffects(sensor_delay=0.025)), 3.0, seed=1)
-    expected = 0.5 * (nominal.body_accel_z[1:-2] + nominal.body_accel_z[:-3])
-    np.testing.assert_allclose(half.body_accel_z[3:], expected, rtol=0, atol=1e-12)
+    fine = simulate(QC, replace(scenario, sensor_rate=200.0), 3.0, seed=1)
+    for delayed_z, fine_z in ((half.body_accel_z, fine.body_accel_z), (half.wheel_accel_z, fine.wheel_accel_z)):
+        # delayed sample i (t = 10 (i + 1) ms) ↔ fine sample 2 i − 4 (t = 5 (2 i − 3) ms, 25 ms earlier)
+        np.testing.assert_allclose(delayed_z[3:], fine_z[2:-4:2], rtol=0, atol=1e-9)
+    linear = 0.5 * (nominal.wheel_accel_z[1:-2] + nominal.wheel_accel_z[:-3])
+    assert np.max(np.abs(half.wheel_accel_z[3:] - linear)) > 1e-3  # the sensor-rate interpolation was not this
 
 
 # --- dynamic effects --------------------------------------------------------------
