@@ -5,9 +5,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from terrain_estimation.sim2real.attribution import FittedModel
+from terrain_estimation.sim2real.diagnose import Diagnosis
 from terrain_estimation.sim2real.where import WhereReport
 
-__all__ = ["markdown", "write_report"]
+__all__ = ["diagnosis_markdown", "markdown", "write_diagnosis", "write_report"]
 
 
 def markdown(report: WhereReport) -> str:
@@ -151,4 +153,221 @@ def write_report(report: WhereReport, out_dir: str | Path, *, figures: bool = Tr
     paths = [md, js]
     if figures:
         paths += _figures(report, out)
+    return paths
+
+
+# ---------------------------------------------------------------------------
+# Full diagnosis (where + which effect + how far it shrinks)
+# ---------------------------------------------------------------------------
+
+
+def _fmt_params(m: FittedModel) -> str:
+    parts = []
+    for effect, params in m.parameters.items():
+        for name, value in params.items():
+            sd = m.std.get(effect, {}).get(name, float("nan"))
+            parts.append(f"{name} = {value:.4g} ± {sd:.2g}")
+        if not params:
+            parts.append(f"{effect} on")
+    return "; ".join(parts)
+
+
+def diagnosis_markdown(d: Diagnosis) -> str:
+    """The full diagnosis as Markdown (a person reads the top in a minute)."""
+    a = d.attribution
+    model = d.model
+    units = {c.name: c.unit for c in model.channels} if model is not None else {}
+    lines = [
+        f"# Sim-to-real diagnosis — `{d.bag}`",
+        "",
+        f"**Verdict: {a.verdict}**",
+        "",
+        f"Vehicle `{d.vehicle}`, {d.duration:.1f} s of data; diagnosed in {d.seconds:.1f} s. "
+        f"Fitted on {a.train_samples} samples, scored on {a.test_samples} held-out samples "
+        f"(every {a.settings.test_every}rd block of {a.settings.block:g} s after a warm-up, never fitted to).",
+        "",
+        "## Which effect, and how far the gap shrinks (held-out data)",
+        "",
+        "Gap = mean normalised residual power above the noise budget, (mean r² − 1), r = residual/σ. "
+        "Shrinkage = 1 − gap(with effect)/gap(nominal); interval: "
+        f"{100 * a.settings.confidence:.0f} % block bootstrap. Score = held-out χ² + p·ln n (p: parameters added).",
+        "",
+        "| rank | model | p | held-out score | shrinkage | interval | significant | fitted parameters (± 1σ) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    rows = [a.nominal] + a.ranking
+    for i, m in enumerate(rows):
+        rank = "–" if i == 0 else str(i)
+        lines.append(
+            f"| {rank} | {m.name} | {m.added} | {m.score:.1f} | {100 * m.shrinkage.get('overall', 0.0):.1f} % | "
+            f"[{100 * m.shrinkage_ci[0]:.0f}, {100 * m.shrinkage_ci[1]:.0f}] % | {'yes' if m.significant else ''} | "
+            f"{_fmt_params(m)} |"
+        )
+    if a.pairs:
+        lines += ["", "Pairs (the best single effect with each significant runner-up):", ""]
+        lines += [
+            "| pair | held-out score | shrinkage | interval | significant over the single |",
+            "|---|---|---|---|---|",
+        ]
+        for m in a.pairs:
+            lines.append(
+                f"| {m.name} | {m.score:.1f} | {100 * m.shrinkage.get('overall', 0.0):.1f} % | "
+                f"[{100 * m.shrinkage_ci[0]:.0f}, {100 * m.shrinkage_ci[1]:.0f}] % | {'yes' if m.significant else ''} |"
+            )
+    if a.best is not None and a.kind != "no_gap":
+        b = a.best
+        lines += ["", f"Per channel, {b.name} against the nominal model (held-out gap):", ""]
+        lines += ["| channel | nominal gap | with the effect | shrinkage |", "|---|---|---|---|"]
+        for key in a.nominal.gap:
+            lines.append(
+                f"| {key} | {a.nominal.gap[key]:.3g} | {b.gap.get(key, 0.0):.3g} | "
+                f"{100 * b.shrinkage.get(key, 0.0):.1f} % |"
+            )
+        if b.residual_gaps:
+            lines += ["", "What the noise tests still flag on the held-out part with it:", ""]
+            lines += [f"- {g}" for g in b.residual_gaps]
+    nuis = ", ".join(f"{k} = {v:.4g}" for k, v in a.nominal.nuisance.items())
+    lines += ["", "## Where the nominal model disagrees", ""]
+    if nuis:
+        lines += [f"Nominal model with its nuisance parameters fitted on the training part: {nuis}.", ""]
+    lines += [f"- {g}" for g in d.where.gaps] or ["- nothing above the noise budget"]
+    lines += [
+        "",
+        "| channel | samples | bias | residual std | noise σ | power ratio | threshold | gain | delay (ms) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for ch in d.where.channels:
+        u = units.get(ch.name, "")
+        lines.append(
+            f"| {ch.name} (`{ch.topic}`) | {ch.samples} | {ch.bias:+.4g} {u} | {ch.residual_std:.4g} | "
+            f"{ch.noise_std:.4g} | {ch.rms_ratio:.2f} | {ch.rms_threshold:.2f} | {ch.gain:.3f} | "
+            f"{1000 * ch.delay:.1f} |"
+        )
+    for ch in d.where.channels:
+        if not ch.bands:
+            continue
+        lines += [
+            "",
+            f"### {ch.name}: per octave band",
+            "",
+            "| band (Hz) | residual / noise power | threshold | measured / (simulated + noise) | coherence | gap |",
+            "|---|---|---|---|---|---|",
+        ]
+        for bs in ch.bands:
+            lines.append(
+                f"| {bs.f_low:g}–{bs.f_high:g} | {bs.residual_to_noise:.2f} | {bs.threshold:.2f} | "
+                f"{bs.measured_to_simulated:.2f} | {bs.coherence:.2f} | {'**yes**' if bs.gap else ''} |"
+            )
+    names = [ch.name for ch in d.where.channels]
+    tables = [("time window", d.where.windows)] + list(d.where.regimes.items())
+    for title, stats_rows in tables:
+        lines += ["", f"### Residual RMS per {title}", "", f"| {title} | samples | " + " | ".join(names) + " | gap |"]
+        lines.append("|---|---|" + "---|" * len(names) + "---|")
+        for r in stats_rows:
+            vals = " | ".join(f"{r.residual_rms.get(n, float('nan')):.4g}" for n in names)
+            lines.append(f"| {r.label} | {r.samples} | {vals} | {', '.join(r.gap)} |")
+    if d.nis is not None and d.nis.updates:
+        n = d.nis
+        lines += [
+            "",
+            "## Estimator innovations",
+            "",
+            f"- mean NIS {n.mean:.3f} over {n.updates} updates, χ²({n.dim}) band [{n.band[0]:.3f}, {n.band[1]:.3f}]: "
+            f"{'in band' if n.in_band else '**out of band**'}; whiteness (autocorrelation of the centred NIS, "
+            f"lags 1..10 vs ±{n.whiteness_bound:.3f}): {'white' if n.white else '**correlated**'}",
+        ]
+    notes = d.notes + a.notes
+    if notes:
+        lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
+    return "\n".join(lines) + "\n"
+
+
+def _diagnosis_figures(d: Diagnosis, out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    a = d.attribution
+    paths: list[Path] = []
+    # 1. Shrinkage per candidate with its interval.
+    fig, ax = plt.subplots(figsize=(8, 0.35 * (len(a.ranking) + len(a.pairs)) + 1.5))
+    rows = a.ranking + a.pairs
+    y = np.arange(len(rows))[::-1]
+    s = np.array([100 * m.shrinkage.get("overall", 0.0) for m in rows])
+    lo = np.array([100 * m.shrinkage_ci[0] for m in rows])
+    hi = np.array([100 * m.shrinkage_ci[1] for m in rows])
+    colors = ["tab:green" if m.significant else "tab:grey" for m in rows]
+    ax.barh(y, np.clip(s, -100, 100), color=colors)
+    ax.errorbar(
+        np.clip(s, -100, 100), y, xerr=[np.clip(s - lo, 0, None), np.clip(hi - s, 0, None)], fmt="none", ecolor="k"
+    )
+    ax.set_yticks(y)
+    ax.set_yticklabels([m.name for m in rows])
+    ax.set_xlim(-100, 105)
+    ax.axvline(0, color="k", lw=0.8)
+    ax.set_xlabel("held-out gap shrinkage (%), green: significant")
+    ax.set_title(a.verdict if len(a.verdict) < 90 else a.verdict[:87] + "…", fontsize=9)
+    fig.tight_layout()
+    paths.append(out / "shrinkage.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+    # 2. Held-out residuals: nominal vs best, per channel.
+    model = d.model
+    if model is not None and a.best is not None and a.best.name in a.series:
+        chans = list(model.channels)
+        fig, axes = plt.subplots(len(chans), 1, figsize=(9, 2.4 * len(chans)), squeeze=False)
+        for ax, ch in zip(axes[:, 0], chans, strict=True):
+            t = np.asarray(model.times[ch.name])
+            m = a.test_masks.get(ch.name, np.ones(t.size, dtype=bool))
+            meas = np.asarray(model.measured[ch.name])
+            r0 = np.where(m, meas - a.series["nominal"][ch.name], np.nan)
+            r1 = np.where(m, meas - a.series[a.best.name][ch.name], np.nan)
+            ax.plot(t, r0, lw=0.6, label="nominal")
+            ax.plot(t, r1, lw=0.6, label=a.best.name)
+            ax.axhspan(-ch.noise_std, ch.noise_std, color="0.85", zorder=0)
+            ax.set_ylabel(f"{ch.name} ({ch.unit})")
+            ax.legend(loc="upper right", fontsize=8)
+        axes[0, 0].set_title("held-out residual (measured − replay); grey band: ±1σ noise budget", fontsize=9)
+        axes[-1, 0].set_xlabel("time (s from bag start)")
+        fig.tight_layout()
+        paths.append(out / "residuals.png")
+        fig.savefig(paths[-1], dpi=100)
+        plt.close(fig)
+    # 3. Residual power per octave band (nominal).
+    chans_b = [cr for cr in d.where.channels if cr.bands]
+    if chans_b:
+        fig, ax = plt.subplots(figsize=(8, 4))
+        width = 0.8 / len(chans_b)
+        for i, cr in enumerate(chans_b):
+            x = np.arange(len(cr.bands)) + i * width
+            ax.bar(x, [b.residual_to_noise for b in cr.bands], width, label=cr.name)
+            ax.plot(x, [b.threshold for b in cr.bands], "k_", markersize=12)
+        ax.set_xticks(np.arange(len(chans_b[0].bands)) + 0.4 - width / 2)
+        ax.set_xticklabels([f"{b.f_low:g}–{b.f_high:g}" for b in chans_b[0].bands])
+        ax.set_yscale("log")
+        ax.axhline(1.0, color="grey", lw=0.8)
+        ax.set_xlabel("band (Hz)")
+        ax.set_ylabel("residual PSD / noise PSD (— threshold)")
+        ax.legend(fontsize=8)
+        ax.set_title("Nominal model: residual power per octave band")
+        fig.tight_layout()
+        paths.append(out / "bands.png")
+        fig.savefig(paths[-1], dpi=100)
+        plt.close(fig)
+    return paths
+
+
+def write_diagnosis(d: Diagnosis, out_dir: str | Path, *, figures: bool = True) -> list[Path]:
+    """Write ``diagnosis.md``, ``diagnosis.json`` and (optionally) figures into ``out_dir``; return the paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    md = out / "diagnosis.md"
+    js = out / "diagnosis.json"
+    md.write_text(diagnosis_markdown(d), encoding="utf-8")
+    js.write_text(json.dumps(d.to_dict(), indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+    paths = [md, js]
+    if figures:
+        paths += _diagnosis_figures(d, out)
     return paths

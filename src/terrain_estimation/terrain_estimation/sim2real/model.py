@@ -1,0 +1,190 @@
+"""What a vehicle gives the sim-to-real attribution engine: a replay model of one bag.
+
+The engine (:mod:`terrain_estimation.sim2real.attribution`) is generic. For
+each vehicle a *replay model* is built from one bag (and the vehicle's config):
+it holds the measured channels and can predict them with the nominal model or
+with any catalogue effect added, for given parameter values. The engine fits
+the parameters on a training part of the bag, scores them on a held-out part,
+ranks the effects, tries pairs and computes the shrinkage of the gap.
+
+A replay model must be cheap to evaluate: the engine calls :meth:`ReplayModel.predict`
+a few hundred times per bag (least squares with a numerical Jacobian, several
+starts, every effect, a few pairs), and a 60 s bag must be diagnosed in under
+a minute on 2 cores.
+
+Conventions
+    * Every channel is a 1-D array of samples at its own times (s, from the
+      start of the bag), fixed when the model is built. :meth:`predict` returns
+      predictions at exactly those times, same shape, finite.
+    * ``noise_std`` of a channel is the noise budget σ: what the residual
+      measured − predicted would be with a perfect model (sensor noise plus
+      what input noise does through the replay). Residuals are compared in
+      units of σ, so channels of different units add up.
+    * *Nuisance* parameters (e.g. the quarter car's ln k_s, which a real bag
+      does not give) are fitted in every model, the nominal one included, so
+      that an effect is never credited with what the nuisance explains.
+    * A candidate effect has zero or more continuous parameters. Zero: a
+      switch (e.g. unilateral wheel contact) that is simply turned on.
+    * ``warmup`` seconds at the start are left out of every fit and score
+      (replays start from rest or from a guessed state).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "Candidate",
+    "Channel",
+    "FitParameter",
+    "ReplayModel",
+    "candidates_from_catalogue",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FitParameter:
+    """A continuous parameter the engine fits.
+
+    Attributes:
+        name: Unique within its effect (for nuisance parameters: among them).
+        unit: Physical unit ("–" dimensionless).
+        off: Value of the nominal model (the effect is absent at this value);
+            for a nuisance parameter: the starting value.
+        bounds: (low, high), finite, containing ``off``.
+        scale: Typical size of a change (the optimiser's variable scaling and
+            the offsets of its extra starting points).
+    """
+
+    name: str
+    unit: str
+    off: float
+    bounds: tuple[float, float]
+    scale: float
+
+    def __post_init__(self) -> None:
+        lo, hi = (float(v) for v in self.bounds)
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi and lo <= self.off <= hi):
+            raise ValueError(f"FitParameter {self.name!r}: need finite low < high around off, got {self}")
+        if not (self.scale > 0.0 and np.isfinite(self.scale)):
+            raise ValueError(f"FitParameter {self.name!r}: scale must be positive, got {self.scale}")
+        object.__setattr__(self, "bounds", (lo, hi))
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One effect the replay model can add to the nominal model.
+
+    Attributes:
+        name: Catalogue effect name (:data:`vehicle_sim.effects.CATALOGUE`).
+        parameters: Its continuous parameters (empty: a switch).
+        description: One line for the report.
+    """
+
+    name: str
+    parameters: tuple[FitParameter, ...]
+    description: str = ""
+
+    @property
+    def size(self) -> int:
+        return len(self.parameters)
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One measured channel of a replay model.
+
+    Attributes:
+        name: Short name (``body``, ``yaw_rate``, ``load_front`` ...).
+        topic: Bag topic (and field) it comes from, for the report.
+        unit: Unit of its samples.
+        noise_std: Noise budget σ (same unit), > 0.
+    """
+
+    name: str
+    topic: str
+    unit: str
+    noise_std: float
+
+
+@runtime_checkable
+class ReplayModel(Protocol):
+    """One bag, replayed through one vehicle's nominal model plus effects.
+
+    Attributes:
+        vehicle: Vehicle key (``quarter_car``, ``lrv``, ``skid_steer``, ``rover``).
+        channels: The measured channels.
+        times: Channel name → sample times (s from the bag start), increasing.
+        measured: Channel name → measured samples.
+        nuisance: Parameters fitted in every model.
+        candidates: Effect name → :class:`Candidate`.
+        regimes: Regime name (e.g. ``speed (m/s)``) → (times, values): operating
+            variables the "where" table bins the residuals by.
+        warmup: Seconds at the start left out of fits and scores.
+        notes: Anything the report should say about how the model was built.
+    """
+
+    vehicle: str
+    channels: Sequence[Channel]
+    times: Mapping[str, FloatArray]
+    measured: Mapping[str, FloatArray]
+    nuisance: Sequence[FitParameter]
+    candidates: Mapping[str, Candidate]
+    regimes: Mapping[str, tuple[FloatArray, FloatArray]]
+    warmup: float
+    notes: list[str]
+
+    def predict(
+        self,
+        effects: Mapping[str, Mapping[str, float]],
+        nuisance: Mapping[str, float],
+    ) -> dict[str, FloatArray]:
+        """Predicted channels with ``effects`` ({effect: {parameter: value}}) added.
+
+        ``{}`` is the nominal model. A switch effect is named with ``{}``.
+        Must return every channel, at ``times[name]``, finite values.
+        """
+        ...
+
+
+# Optional method of a replay model, used when present:
+#
+#     def noise_std_for(self, effects, nuisance) -> dict[str, float]
+#
+# the noise budget σ per channel for the model with ``effects`` (when an effect
+# feeds an input's noise through to a channel, e.g. a damper on the measured
+# road rate). The engine fits with the fixed ``Channel.noise_std`` and uses
+# this only in the noise tests ("no significant gap", "explained").
+
+
+def candidates_from_catalogue(
+    vehicle: str,
+    only: Sequence[str] | None = None,
+    exclude: Sequence[str] = (),
+) -> dict[str, Candidate]:
+    """Candidates for ``vehicle`` from :data:`vehicle_sim.effects.CATALOGUE`.
+
+    Fit bounds are the catalogue's fit ranges, the scale its typical deviation
+    from the off value; switch parameters give a zero-parameter candidate.
+    """
+    from vehicle_sim.effects import CATALOGUE
+
+    out: dict[str, Candidate] = {}
+    for name, effect in CATALOGUE[vehicle].items():
+        if (only is not None and name not in only) or name in exclude:
+            continue
+        params = []
+        for p in effect.parameters:
+            if p.switch:
+                continue
+            scale = abs(p.typical - p.off) or 0.1 * (p.fit_range[1] - p.fit_range[0])
+            params.append(FitParameter(p.name, p.unit, float(p.off), p.fit_range, float(scale)))
+        out[name] = Candidate(name, tuple(params), effect.description)
+    return out

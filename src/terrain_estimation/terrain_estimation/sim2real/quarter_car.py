@@ -1,0 +1,457 @@
+"""Replay model of a quarter-car (2-DOF) or LRV (1-DOF) bag, with every catalogue effect.
+
+The nominal plant of :mod:`vehicle_sim.plants.quarter_car` (MODELS.md A.1, A.7)
+is driven by the bag's measured road (``terrain/profile``, Savitzky–Golay
+smoothed as in :mod:`~terrain_estimation.sim2real.where`) on the profile's own
+time grid, integrated by RK4 at that step (JIT-compiled), from rest at the
+first road height. Its body (and wheel) specific forces are compared with
+``imu/body`` (and ``imu/wheel``) at the accelerometer stamps.
+
+Nuisance parameter
+    ``ln_k_s``: the soil stiffness k_s (N/m) is what the vehicle's estimator is
+    for and no real bag gives it, so it is fitted in every model, the nominal
+    one included, starting from the estimator's final estimate. An effect that
+    biases the estimator's k_s is then not mistaken for a gap everywhere.
+
+Effects (:data:`vehicle_sim.effects.CATALOGUE`, same physics as the plant)
+    * ``accel_bias``, ``accel_scale``: reading = (1 + s)(ÿ + g) + b per channel;
+    * ``sensor_delay``: the accelerometers read the specific force d seconds
+      late (linear interpolation of the replay's fine grid);
+    * ``nonlinear_soil``: soil force k_s z₀ (z/z₀)ⁿ about the static sinkage
+      z₀ = W/k_s, in series with the tire (LRV: combined) spring, solved per
+      stage by safeguarded Newton like the plant;
+    * ``wheel_liftoff``: total ground force W + F_d ≥ 0;
+    * ``suspension_friction``: F_c tanh(Δv / v_f), v_f = 0.02 m/s (2-DOF);
+    * ``tire_damping``: c_t (ḣ − ẏ2) in parallel with the tire–soil chain (2-DOF);
+    * ``tire_enveloping``: the road averaged over the contact length L
+      (moving average over distance, from the profile's own x);
+    * ``sprung_mass_change``: m_s (1 + x), the static load W with it.
+
+Noise budget per channel: the config's accelerometer variance R plus what
+the profile sensor's noise (``estimator.profile_noise_std``) does through the
+replay's direct feed-through (wheel channel: k_tot/m_2 times the smoothed
+noise; LRV body: k_tot/m and the ground damper's share).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+from scipy import signal
+
+from terrain_estimation.sim2real.model import Candidate, Channel, FitParameter, candidates_from_catalogue
+from terrain_estimation.sim2real.where import Sim2RealError, _odd, _read, _savgol
+from terrain_estimation.tools.estimate import topic_name
+from terrain_estimation.vehicles import estimator_parameters, get_vehicle
+
+__all__ = ["QuarterCarReplay", "build_model"]
+
+FloatArray = NDArray[np.float64]
+
+FRICTION_VELOCITY_SCALE = 0.02  # m/s, as vehicle_sim.plants.quarter_car
+
+
+@njit(cache=True)
+def _chain_force(deflection: float, series: float, k_s: float, load: float, n: float) -> float:  # pragma: no cover
+    """Dynamic force of a spring ``series`` in series with the Bekker-type soil (see the plant)."""
+    ratio = k_s / series
+    target = deflection * k_s / load
+    inv_n = 1.0 / n
+    x = 1.0 + target / (1.0 + ratio)
+
+    def residual(x: float) -> float:
+        root = abs(x) ** inv_n
+        return ratio * (x - 1.0) + math.copysign(root, x) - 1.0 - target
+
+    f = residual(x)
+    if f == 0.0:
+        return load * (x - 1.0)
+    step = max(1.0, abs(x))
+    if f < 0.0:
+        lo, hi = x, x + step
+    else:
+        lo, hi = x - step, x
+    while residual(lo) > 0.0:
+        step *= 2.0
+        lo -= step
+    while residual(hi) < 0.0:
+        step *= 2.0
+        hi += step
+    for _ in range(60):
+        f = residual(x)
+        if f == 0.0:
+            break
+        if f < 0.0:
+            lo = x
+        else:
+            hi = x
+        ax = abs(x)
+        if ax > 0.0:
+            x_new = x - f / (ratio + inv_n * ax ** (inv_n - 1.0))
+        else:
+            x_new = 0.5 * (lo + hi)
+        if not (lo < x_new < hi):
+            x_new = 0.5 * (lo + hi)
+        if abs(x_new - x) <= 1e-12 * max(1.0, abs(x)):
+            x = x_new
+            break
+        x = x_new
+    return load * (x - 1.0)
+
+
+@njit(cache=True)
+def _forces(
+    y1: float,
+    v1: float,
+    y2: float,
+    v2: float,
+    h: float,
+    hd: float,
+    p: FloatArray,
+) -> tuple[float, float]:  # pragma: no cover
+    """(ÿ1, ÿ2) of the 2-DOF model (``two_dof`` = p[12] > 0) or (ÿ1, 0) of the LRV."""
+    m1, m2, k, c, series, k_s, load, n_exp, liftoff, fric, ct, ground_damper, two_dof = p[:13]
+    kt = series * k_s / (series + k_s)
+    if two_dof > 0.0:
+        dv = v2 - v1
+        suspension = k * (y2 - y1) + c * dv
+        if fric > 0.0:
+            suspension += fric * math.tanh(dv / FRICTION_VELOCITY_SCALE)
+        if n_exp > 0.0 and n_exp != 1.0:
+            ground = _chain_force(h - y2, series, k_s, load, n_exp)
+        else:
+            ground = kt * (h - y2)
+        if ct > 0.0:
+            ground += ct * (hd - v2)
+        if liftoff > 0.0 and ground < -load:
+            ground = -load
+        return suspension / m1, (ground - suspension) / m2
+    if n_exp > 0.0 and n_exp != 1.0:
+        spring = _chain_force(h - y1, series, k_s, load, n_exp)
+    else:
+        spring = kt * (h - y1)
+    if ground_damper > 0.0:
+        ground = spring + c * (hd - v1)
+        sky = 0.0
+    else:
+        ground = spring
+        sky = -c * v1
+    if liftoff > 0.0 and ground < -load:
+        ground = -load
+    return (ground + sky) / m1, 0.0
+
+
+@njit(cache=True)
+def _simulate(
+    h: FloatArray, hd: FloatArray, dt: float, p: FloatArray
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover
+    """RK4 over the road grid from rest at h[0]; accelerations at every grid point."""
+    n = h.size
+    a1 = np.empty(n)
+    a2 = np.empty(n)
+    y1 = h[0]
+    y2 = h[0]
+    v1 = 0.0
+    v2 = 0.0
+    half = 0.5 * dt
+    sixth = dt / 6.0
+    for i in range(n):
+        k1a, k1b = _forces(y1, v1, y2, v2, h[i], hd[i], p)
+        a1[i] = k1a
+        a2[i] = k1b
+        if i == n - 1:
+            break
+        hm = 0.5 * (h[i] + h[i + 1])
+        hdm = 0.5 * (hd[i] + hd[i + 1])
+        p1, q1 = v1 + half * k1a, v2 + half * k1b
+        k2a, k2b = _forces(y1 + half * v1, p1, y2 + half * v2, q1, hm, hdm, p)
+        p2, q2 = v1 + half * k2a, v2 + half * k2b
+        k3a, k3b = _forces(y1 + half * p1, p2, y2 + half * q1, q2, hm, hdm, p)
+        p3, q3 = v1 + dt * k3a, v2 + dt * k3b
+        k4a, k4b = _forces(y1 + dt * p2, p3, y2 + dt * q2, q3, h[i + 1], hd[i + 1], p)
+        y1 += sixth * (v1 + 2.0 * p1 + 2.0 * p2 + p3)
+        y2 += sixth * (v2 + 2.0 * q1 + 2.0 * q2 + q3)
+        v1 += sixth * (k1a + 2.0 * k2a + 2.0 * k3a + k4a)
+        v2 += sixth * (k1b + 2.0 * k2b + 2.0 * k3b + k4b)
+        if not (math.isfinite(y1) and math.isfinite(y2) and abs(y1) < 1e3 and abs(y2) < 1e3):
+            a1[i + 1 :] = 0.0
+            a2[i + 1 :] = 0.0
+            break
+    return a1, a2
+
+
+class QuarterCarReplay:
+    """:class:`~terrain_estimation.sim2real.model.ReplayModel` of one quarter-car / LRV bag."""
+
+    def __init__(
+        self,
+        vehicle: str,
+        values: Mapping[str, Any],
+        grid: FloatArray,
+        h: FloatArray,
+        h_rate: FloatArray,
+        distance: FloatArray,
+        channels: list[tuple[Channel, FloatArray, FloatArray]],
+        speed: tuple[FloatArray, FloatArray],
+        k_s: float,
+        smooth: Callable[[FloatArray], tuple[FloatArray, FloatArray]],
+        warmup: float,
+        notes: list[str],
+        noise: tuple[float, float, float, float],
+    ) -> None:
+        self.vehicle = vehicle
+        self.two_dof = vehicle == "quarter_car"
+        self._values = dict(values)
+        self._t0 = float(grid[0])
+        self._grid = grid - self._t0
+        self._dt = float(self._grid[1] - self._grid[0])
+        self._h, self._hd = h, h_rate
+        self._distance = distance
+        self._smooth = smooth
+        self.channels = [c for c, _, _ in channels]
+        self.times = {c.name: t - self._t0 for c, t, _ in channels}
+        self.measured = {c.name: y for c, _, y in channels}
+        self.regimes = {"speed (m/s)": (speed[0] - self._t0, speed[1])}
+        self.warmup = warmup
+        self.notes = notes
+        self.gravity = float(values["estimator.gravity"])
+        self.k_s_start = k_s
+        ln = math.log(k_s)
+        self.nuisance = [FitParameter("ln_k_s", "ln(N/m)", ln, (ln - math.log(30.0), ln + math.log(30.0)), 0.2)]
+        self.candidates: dict[str, Candidate] = candidates_from_catalogue(vehicle)
+        self._envelope_cache: dict[float, tuple[FloatArray, FloatArray]] = {}
+        # (R, σ_h² of the profile, Σ smoothing², Σ derivative²): the noise budget's pieces.
+        self._noise = noise
+        self.channels = [Channel(c.name, c.topic, c.unit, self.noise_std_for({}, {})[c.name]) for c in self.channels]
+
+    def with_k_s(self, k_s: float) -> QuarterCarReplay:
+        """Restart the ln k_s nuisance (and the noise budget) from ``k_s`` (N/m); returns self."""
+        if not (k_s > 0.0 and math.isfinite(k_s)):
+            raise Sim2RealError(f"starting soil stiffness must be positive and finite, got {k_s}")
+        self.k_s_start = float(k_s)
+        ln = math.log(k_s)
+        self.nuisance = [FitParameter("ln_k_s", "ln(N/m)", ln, (ln - math.log(30.0), ln + math.log(30.0)), 0.2)]
+        self.channels = [Channel(c.name, c.topic, c.unit, self.noise_std_for({}, {})[c.name]) for c in self.channels]
+        return self
+
+    def _effect_values(self, effects: Mapping[str, Mapping[str, float]]) -> dict[str, float]:
+        e: dict[str, float] = {}
+        for name, params in effects.items():
+            if name not in self.candidates:
+                raise KeyError(f"{self.vehicle} has no effect {name!r}")
+            e.update({k: float(x) for k, x in params.items()})
+            if name == "wheel_liftoff":
+                e["wheel_liftoff"] = 1.0
+        return e
+
+    def noise_std_for(
+        self, effects: Mapping[str, Mapping[str, float]], nuisance: Mapping[str, float]
+    ) -> dict[str, float]:
+        """Noise budget σ per channel: R plus the profile noise fed straight through the replay.
+
+        2-DOF wheel: (k_tot/m₂)² σ_h² Σc² + (c_t/m₂)² σ_h² Σd² (c: the
+        smoothing filter, d: the road-rate filter); LRV body: (k_tot/m)² σ_h² Σc²
+        + (c/m)² σ_h² Σd² with the ground damper; the 2-DOF body has no direct
+        feed-through. k_tot uses the stiffness at the static point (n·k_s for
+        the nonlinear soil).
+        """
+        v = self._values
+        e = self._effect_values(effects)
+        r_var, s2, c2, d2 = self._noise
+        k_s = math.exp(float(nuisance.get("ln_k_s", math.log(self.k_s_start)))) * e.get("soil_exponent", 1.0)
+        if self.two_dof:
+            series = float(v["vehicle.tire_stiffness"])
+            kt = series * k_s / (series + k_s)
+            m2 = float(v["vehicle.unsprung_mass"])
+            ct = e.get("tire_damping", 0.0)
+            return {
+                "body": math.sqrt(r_var),
+                "wheel": math.sqrt(r_var + s2 * ((kt / m2) ** 2 * c2 + (ct / m2) ** 2 * d2)),
+            }
+        series = float(v["vehicle.suspension_stiffness"])
+        kt = series * k_s / (series + k_s)
+        m = float(v["vehicle.sprung_mass"]) * (1.0 + e.get("sprung_mass_change", 0.0))
+        c = (
+            float(v["vehicle.suspension_damping"])
+            if str(v.get("vehicle.damper_reference", "ground")) == "ground"
+            else 0.0
+        )
+        return {"body": math.sqrt(r_var + s2 * ((kt / m) ** 2 * c2 + (c / m) ** 2 * d2))}
+
+    # -- effects ----------------------------------------------------------
+
+    def _road(self, length: float) -> tuple[FloatArray, FloatArray]:
+        if length <= 1e-4:
+            return self._h, self._hd
+        key = round(length, 5)
+        if key not in self._envelope_cache:
+            s = self._distance
+            # ∫h ds by the trapezoid rule over the profile's own distances, then the centred window mean.
+            integral = np.concatenate([[0.0], np.cumsum(0.5 * (self._h[1:] + self._h[:-1]) * np.diff(s))])
+            half = 0.5 * length
+            lo = np.clip(s - half, s[0], s[-1])
+            hi = np.clip(s + half, s[0], s[-1])
+            width = np.maximum(hi - lo, 1e-9)
+            env = (np.interp(hi, s, integral) - np.interp(lo, s, integral)) / width
+            if len(self._envelope_cache) > 64:
+                self._envelope_cache.clear()
+            self._envelope_cache[key] = (env, self._smooth(env)[1])
+        return self._envelope_cache[key]
+
+    def predict(
+        self, effects: Mapping[str, Mapping[str, float]], nuisance: Mapping[str, float]
+    ) -> dict[str, FloatArray]:
+        v = self._values
+        k_s = math.exp(float(nuisance.get("ln_k_s", math.log(self.k_s_start))))
+        e = self._effect_values(effects)
+        m1 = float(v["vehicle.sprung_mass"]) * (1.0 + e.get("sprung_mass_change", 0.0))
+        c = float(v["vehicle.suspension_damping"])
+        if self.two_dof:
+            m2 = float(v["vehicle.unsprung_mass"])
+            k = float(v["vehicle.suspension_stiffness"])
+            series = float(v["vehicle.tire_stiffness"])
+            load = (m1 + m2) * self.gravity
+            ground_damper = 0.0
+        else:
+            m2 = 0.0
+            k = 0.0
+            series = float(v["vehicle.suspension_stiffness"])
+            load = m1 * self.gravity
+            ground_damper = 1.0 if str(v.get("vehicle.damper_reference", "ground")) == "ground" else 0.0
+        params = np.array(
+            [
+                m1,
+                m2,
+                k,
+                c,
+                series,
+                k_s,
+                load,
+                e.get("soil_exponent", 1.0),
+                e.get("wheel_liftoff", 0.0),
+                e.get("suspension_friction", 0.0),
+                e.get("tire_damping", 0.0),
+                ground_damper,
+                1.0 if self.two_dof else 0.0,
+            ]
+        )
+        h, hd = self._road(e.get("tire_contact_length", 0.0))
+        a1, a2 = _simulate(h, hd, self._dt, params)
+        delay = e.get("sensor_delay", 0.0)
+        out = {}
+        for ch in self.channels:
+            acc = a1 if ch.name == "body" else a2
+            t = self.times[ch.name] - delay
+            y = np.interp(t, self._grid, acc) + self.gravity
+            y = (1.0 + e.get(f"accel_scale_{ch.name}", 0.0)) * y + e.get(f"accel_bias_{ch.name}", 0.0)
+            out[ch.name] = y
+        return out
+
+
+def build_model(
+    bag: str | Path,
+    vehicle: str = "quarter_car",
+    *,
+    config: str | Path | None = None,
+    namespace: str | None = None,
+    k_s: float | None = None,
+    warmup: float = 1.5,
+    progress: Callable[[str], None] | None = None,
+) -> QuarterCarReplay:
+    """Read ``bag`` and build its replay model.
+
+    Args:
+        bag: rosbag2 directory (CONTRACT.md, quarter car or LRV topics).
+        vehicle: ``quarter_car`` or ``lrv``.
+        config: Parameter file (default ``config/<vehicle>.yaml``).
+        namespace: Namespace of the bag (default: the vehicle's).
+        k_s: Starting soil stiffness (N/m); default: the estimator's final
+            estimate over the bag (it needs the estimator run).
+        warmup: Seconds left out at the start (the replay starts at rest).
+        progress: Called with progress lines.
+    """
+    from terrain_estimation.tools.estimate import estimate_bag
+
+    if vehicle not in ("quarter_car", "lrv"):
+        raise Sim2RealError(f"quarter-car replay is for quarter_car or lrv, not {vehicle!r}")
+
+    def say(text: str) -> None:
+        if progress is not None:
+            progress(text)
+
+    entry = get_vehicle(vehicle)
+    ns = namespace if namespace is not None else entry.namespace
+    values = estimator_parameters(entry, config)
+    two_dof = vehicle == "quarter_car"
+    radius = float(values["vehicle.wheel_radius"])
+    r_var = float(values["filter.accel_noise_variance"])
+    sigma_h = float(values["estimator.profile_noise_std"])
+    say(f"reading {bag} ({vehicle}, namespace {ns})")
+    data = _read(bag, ns, two_dof, radius)
+    notes: list[str] = []
+    if k_s is None:
+        say("running the estimator over the bag (a starting soil stiffness for the replay)")
+        run = estimate_bag(bag, vehicle, namespace=ns, config=config)
+        estimates = run.messages(topic_name(ns, "soil_stiffness"))
+        good = [m for m in estimates if m.converged and math.isfinite(float(m.k_s)) and float(m.k_s) > 0]
+        if good:
+            k_s = float(good[-1].k_s)
+        elif estimates and float(estimates[-1].k_s) > 0:
+            k_s = float(estimates[-1].k_s)
+            notes.append("the estimator never converged on this bag: the replay's starting k_s is uncertain")
+        else:
+            raise Sim2RealError(f"the estimator produced no usable {topic_name(ns, 'soil_stiffness')} estimate")
+    # Road on the profile's own (assumed uniform) time grid.
+    keep = np.concatenate([[True], np.diff(data.profile_t) > 0.0])
+    tp, zp, xp = data.profile_t[keep], data.profile_z[keep], data.profile_x[keep]
+    if tp.size < 16:
+        raise Sim2RealError(f"{topic_name(ns, 'terrain/profile')}: only {tp.size} distinct stamps")
+    dt_p = float(np.median(np.diff(tp)))
+    grid = np.arange(tp[0], tp[-1] + 0.5 * dt_p, dt_p)
+    h_raw = np.interp(grid, tp, zp)
+    x_grid = np.maximum.accumulate(np.interp(grid, tp, xp))
+    speed_mean = float(np.mean(np.abs(data.speed))) or 1.0
+    n_h = 5
+    hdot_window = float(values.get("estimator.hdot_window", 0.06)) or 0.06
+    n_d = _odd(round(0.5 * hdot_window / speed_mean / dt_p), 7)
+
+    def smooth(raw: FloatArray) -> tuple[FloatArray, FloatArray]:
+        hs = np.asarray(signal.savgol_filter(raw, n_h, 2, mode="interp"), dtype=float)
+        rate = np.asarray(signal.savgol_filter(raw, n_d, 3, deriv=1, delta=dt_p, mode="interp"), dtype=float)
+        return hs, rate
+
+    h, h_rate = smooth(h_raw)
+    coeffs = _savgol(n_h, 2, 0, dt_p)
+    d_coeffs = _savgol(n_d, 3, 1, dt_p)
+    noise = (r_var, sigma_h**2, float(np.sum(coeffs**2)), float(np.sum(d_coeffs**2)))
+    raw = [("body", topic_name(ns, "imu/body"), data.body_t, data.body)]
+    if two_dof and data.wheel_t is not None and data.wheel is not None:
+        raw.append(("wheel", topic_name(ns, "imu/wheel"), data.wheel_t, data.wheel))
+    channels = []
+    for name, topic, t, y in raw:
+        sel = (t >= grid[0]) & (t <= grid[-1])
+        if int(np.sum(sel)) < 64:
+            raise Sim2RealError(f"{topic}: only {int(np.sum(sel))} samples overlap the profile; need at least 64")
+        channels.append((Channel(name, f"{topic} linear_acceleration.z", "m/s²", 1.0), t[sel], y[sel]))
+    say(f"replay model: {len(grid)} road samples at {1 / dt_p:.0f} Hz, k_s start {k_s:.4g} N/m")
+    return QuarterCarReplay(
+        vehicle,
+        values,
+        grid,
+        h,
+        h_rate,
+        x_grid,
+        channels,
+        (data.joint_t, np.abs(data.speed)),
+        float(k_s),
+        smooth,
+        warmup,
+        notes,
+        noise,
+    )

@@ -1,0 +1,123 @@
+"""Quarter-car / LRV replay model and the full diagnosis (issue 6) on short simulated bags.
+
+The replay model's physics is checked against the simulator it stands for:
+with the withheld effect at its true value and the true soil, the replay of
+a bag leaves residuals at the noise budget; without it, it does not. Then the
+whole diagnosis (``terrain-sim2real``) runs blind on a few bags.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from terrain_estimation.bag import AtomicBagWriter, read_bag
+from terrain_estimation.sim2real.quarter_car import build_model
+from terrain_estimation.tools.sim2real import main as sim2real_main
+from vehicle_sim.terrain.soils import soil_by_name
+from vehicle_sim.tools.simulate import record
+
+DURATION = 8.0
+SOIL = "graneville_loam"
+
+
+def _bag(tmp: Path, name: str, vehicle: str = "quarter_car", **overrides: object) -> Path:
+    out = tmp / name
+    base = {"seed": 3, "scenario.road_seed": 4, "scenario.soils": [SOIL]}
+    if vehicle == "lrv":
+        base["scenario.soils"] = ["lunar_regolith"]
+    record(vehicle, DURATION, out, overrides={**base, **overrides})
+    return out
+
+
+def _power_ratio(model, effects) -> dict[str, float]:  # type: ignore[no-untyped-def]
+    pred = model.predict(effects, {})
+    sigma = model.noise_std_for(effects, {})
+    out = {}
+    for ch in model.channels:
+        sel = model.times[ch.name] >= model.warmup
+        r = (model.measured[ch.name][sel] - pred[ch.name][sel]) / sigma[ch.name]
+        out[ch.name] = float(np.mean(r**2))
+    return out
+
+
+@pytest.mark.parametrize(
+    ("override", "effect", "value"),
+    [
+        ("effects.suspension_friction", "suspension_friction", 150.0),
+        ("effects.soil_exponent", "nonlinear_soil", 1.6),
+        ("effects.tire_damping", "tire_damping", 900.0),
+        ("effects.tire_contact_length", "tire_enveloping", 0.25),
+        ("effects.sensor_delay", "sensor_delay", 0.013),
+        ("effects.sprung_mass_change", "sprung_mass_change", 0.25),
+    ],
+)
+def test_replay_with_the_true_effect_is_at_the_noise(tmp_path: Path, override: str, effect: str, value: float) -> None:
+    bag = _bag(tmp_path, effect, **{override: value})
+    model = build_model(bag, "quarter_car", k_s=soil_by_name(SOIL).k_s)
+    parameter = model.candidates[effect].parameters[0].name
+    with_effect = _power_ratio(model, {effect: {parameter: value}})
+    nominal = _power_ratio(model, {})
+    for ch in model.channels:
+        assert with_effect[ch.name] < 1.15, (ch.name, with_effect, nominal)
+    assert max(nominal.values()) > 1.3, nominal  # the effect is visible at all
+
+
+@pytest.mark.parametrize(
+    ("override", "effect", "value"),
+    [("effects.sprung_mass_change", "sprung_mass_change", 0.3), ("effects.sensor_delay", "sensor_delay", 0.02)],
+)
+def test_lrv_replay_with_the_true_effect_is_at_the_noise(
+    tmp_path: Path, override: str, effect: str, value: float
+) -> None:
+    # (The LRV's nonlinear soil is not in this list: about its static sinkage on regolith the
+    # dynamic load is too small for n = 2 to change the body acceleration measurably, 1.06 vs 1.07.)
+    bag = _bag(tmp_path, effect, "lrv", **{override: value})
+    model = build_model(bag, "lrv", k_s=soil_by_name("lunar_regolith").k_s)
+    assert [c.name for c in model.channels] == ["body"]
+    parameter = model.candidates[effect].parameters[0].name
+    assert _power_ratio(model, {effect: {parameter: value}})["body"] < 1.15
+    assert _power_ratio(model, {})["body"] > 1.3
+
+
+def test_nominal_bag_has_no_gap_and_reports_are_written(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bag = _bag(tmp_path, "nominal")
+    out = tmp_path / "report"
+    code = sim2real_main([str(bag), "--vehicle", "quarter_car", "-o", str(out), "-q"])
+    printed = capsys.readouterr().out
+    assert code == 0, printed
+    assert "verdict: no significant gap" in printed
+    data = json.loads((out / "diagnosis.json").read_text())
+    assert data["attribution"]["kind"] == "no_gap"
+    k_s = math.exp(data["attribution"]["nominal"]["nuisance"]["ln_k_s"])
+    assert k_s == pytest.approx(soil_by_name(SOIL).k_s, rel=0.1)
+    assert {p.name for p in out.iterdir()} >= {"diagnosis.md", "diagnosis.json", "shrinkage.png"}
+    assert "## Where the nominal model disagrees" in (out / "diagnosis.md").read_text()
+
+
+def test_a_withheld_effect_is_attributed_blind(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bag = _bag(tmp_path, "envelope", **{"effects.tire_contact_length": 0.3})
+    out = tmp_path / "report"
+    code = sim2real_main([str(bag), "--vehicle", "quarter_car", "-o", str(out), "-q", "--no-figures"])
+    printed = capsys.readouterr().out
+    assert code == 1
+    assert "verdict: explained by tire_enveloping" in printed
+    best = json.loads((out / "diagnosis.json").read_text())["attribution"]["best"]
+    assert best["parameters"]["tire_enveloping"]["tire_contact_length"] == pytest.approx(0.3, abs=0.05)
+    assert best["shrinkage"]["overall"] > 0.7
+
+
+def test_missing_topic_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bag = _bag(tmp_path, "nominal")
+    cut = tmp_path / "no_profile"
+    with AtomicBagWriter(cut) as writer:
+        for item in read_bag(bag):
+            if item.topic != "/quarter_car/terrain/profile":
+                writer.write(item.topic, item.msg, item.log_time_ns)
+    code = sim2real_main([str(cut), "--vehicle", "quarter_car", "-q"])
+    assert code == 2
+    assert "/quarter_car/terrain/profile" in capsys.readouterr().err
