@@ -30,7 +30,7 @@ export OMP_NUM_THREADS ?= 1
 
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc reproduce-skid reproduce-rover bench bags clean distclean constraints
+.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc reproduce-skid reproduce-rover bench bags clean distclean constraints validate-sim2real sim2real-real-data
 
 setup: $(PKGS_STAMP)
 
@@ -79,6 +79,27 @@ reproduce-skid: setup
 
 reproduce-rover: setup
 	$(PY) -m terrain_estimation.tools.reproduce_rover --out docs/results --jobs 2
+
+# Sim-to-real diagnosis (issue 6). validate-sim2real: withheld-effect suite, diagnosed blind, scored
+# (PER_EFFECT bags per catalogue effect; about 1 h on 2 cores at the default 6). sim2real-real-data:
+# the real data sets of $(REAL_DATA) (skipped with a message when absent).
+PER_EFFECT ?= 6
+REAL_DATA  ?= ../shared/real_data
+
+validate-sim2real: setup
+	$(PY) -m terrain_estimation.tools.validate_sim2real --out out/sim2real_validation --per-effect $(PER_EFFECT) \
+		--jobs 2 --report docs/results/sim2real/validation.md
+	$(PY) -m terrain_estimation.tools.sim2real_results
+
+sim2real-real-data: setup
+	@if [ -d "$(REAL_DATA)/cmu_single_wheel" ]; then \
+		$(PY) -m terrain_estimation.sim2real.single_wheel --data $(REAL_DATA)/cmu_single_wheel \
+			--out docs/results/sim2real/cmu; \
+	else echo "sim2real-real-data: $(REAL_DATA)/cmu_single_wheel not found, CMU rig skipped"; fi
+	@if [ -d "$(REAL_DATA)/borealtc" ]; then \
+		$(PY) -m terrain_estimation.sim2real.husky --data $(REAL_DATA)/borealtc --out docs/results/sim2real/husky; \
+	else echo "sim2real-real-data: $(REAL_DATA)/borealtc not found, Husky runs skipped"; fi
+	$(PY) -m terrain_estimation.tools.sim2real_results
 
 constraints: setup
 	{ head -n 3 constraints.txt; $(PIP) freeze | grep -v -E '^(-e |terrain|vehicle)'; } > constraints.txt.new
