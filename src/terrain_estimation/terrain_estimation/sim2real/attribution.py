@@ -35,9 +35,10 @@ Method
        it improves significantly on it.
     7. **Verdict.**
        * "no significant gap": the nominal model's residuals (all samples
-         after the warm-up: only the nuisance is fitted) pass the noise tests of :mod:`~terrain_estimation.sim2real.where` (bias,
-         power, octave bands; Bonferroni-corrected χ² and normal bounds with a
-         model-error allowance) on every channel, and no effect improves the
+         after the warm-up: only the nuisance is fitted) pass the noise tests
+         of :mod:`~terrain_estimation.sim2real.where` (bias, power, octave
+         bands; Bonferroni-corrected χ² and normal bounds with a model-error
+         allowance) on every channel, and no effect improves the
          held-out score significantly;
        * "explained by X (shrinks the gap by N %)": the best effect (or pair)
          improves the held-out score significantly (bootstrap) and its held-out
@@ -607,7 +608,8 @@ def attribute(
             return m.significant and (m.at_noise or m.shrinkage_ci[0] >= settings.explained_shrinkage)
 
         if not best.at_noise:
-            # Forward selection: the best single plus each partner. Partners: the runners-up that improved the held-out score significantly, and those that
+            # Forward selection: the best single plus each partner. Partners: the runners-up
+            # that improved the held-out score significantly, and those that
             # shrink some channel's gap clearly while worsening another (complementary effects are
             # not significant alone: one fixes one channel, the other the rest).
             partners = [
