@@ -73,3 +73,37 @@ def test_missing_topic_is_named(nominal_bag: Path, tmp_path: Path) -> None:
 def test_unsupported_vehicle() -> None:
     with pytest.raises(Sim2RealError, match="skid_steer"):
         diagnose_where("nowhere", "skid_steer")
+
+
+def test_noise_tests_false_alarm_rate_on_white_noise() -> None:
+    """The bias, power and band tests of one channel hold their share of α on pure sensor noise.
+
+    With two channels and α = 0.01 each channel may flag white noise in 0.5 % of bags; Welch
+    bins are correlated, so counting them as independent (the old band dof) gave 1-4 %.
+    """
+    import numpy as np
+
+    from terrain_estimation.sim2real.where import WhereSettings, _channel
+
+    rng = np.random.default_rng(11)
+    trials, flagged = 400, 0
+    for _ in range(trials):
+        noise = 0.3 * rng.standard_normal(2000)  # 20 s at 100 Hz, σ = 0.3 (any unit)
+        rep = _channel("x", "/x", noise, np.zeros_like(noise), 100.0, 0.09, WhereSettings(), 2, unit="rad/s")
+        flagged += bool(rep.gaps)
+    assert flagged / trials <= 0.015  # expected ≤ 0.005; binomial 99.9 % bound for 400 trials ≈ 0.015
+
+
+def test_bias_floor_scales_with_the_channel_noise() -> None:
+    """A bias far below the sensor noise is model-error allowance in any unit; one above the floor is a gap."""
+    import numpy as np
+
+    from terrain_estimation.sim2real.where import WhereSettings, _channel
+
+    rng = np.random.default_rng(2)
+    sigma = 0.002  # rad/s: a gyro, where an absolute 0.05 floor would hide any bias
+    noise = sigma * rng.standard_normal(20000)
+    clean = _channel("yaw", "/yaw", noise, np.zeros_like(noise), 100.0, sigma**2, WhereSettings(), 1, unit="rad/s")
+    biased = _channel("yaw", "/yaw", noise + 0.002, np.zeros_like(noise), 100.0, sigma**2, WhereSettings(), 1, "rad/s")
+    assert not clean.gaps
+    assert any("bias" in g and "rad/s" in g for g in biased.gaps)

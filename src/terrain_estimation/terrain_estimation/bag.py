@@ -140,6 +140,8 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) 
                 except BagError:
                     continue  # a type we do not use: skip its topic
             connections = [c for c in connections if c.id in classes]
+            if not connections:
+                return  # rosbags reads every topic when given no connections
             for conn, timestamp, raw in reader.messages(connections=connections):
                 topic = conn.topic
                 msg = deserialize_message(bytes(raw), classes[conn.id])

@@ -162,7 +162,9 @@ def where_table(model: ReplayModel, prediction: Mapping[str, FloatArray], where:
             from dataclasses import replace
 
             w = replace(where, bands=(0.0,))
-        channels.append(_channel(ch.name, ch.topic, meas, sim, fs, sigma[ch.name] ** 2, w, len(model.channels)))
+        channels.append(
+            _channel(ch.name, ch.topic, meas, sim, fs, sigma[ch.name] ** 2, w, len(model.channels), ch.unit)
+        )
         residuals[ch.name] = np.interp(t_ref, t[sel], meas - sim)
     n_win = max(1, int(math.ceil((t_ref[-1] - start + 1e-9) / where.window))) if t_ref.size else 0
     win = []
