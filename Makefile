@@ -84,10 +84,11 @@ reproduce-rover: setup
 # (PER_EFFECT bags per catalogue effect; about 1 h on 2 cores at the default 6). sim2real-real-data:
 # the real data sets of $(REAL_DATA) (skipped with a message when absent).
 PER_EFFECT ?= 6
+CONTROLS   ?= 10
 REAL_DATA  ?= ../shared/real_data
 
 validate-sim2real: setup
-	$(PY) -m terrain_estimation.tools.validate_sim2real --out out/sim2real_validation --per-effect $(PER_EFFECT) \
+	$(PY) -m terrain_estimation.tools.validate_sim2real --out out/sim2real_validation --per-effect $(PER_EFFECT) --controls $(CONTROLS) \
 		--jobs 2 --report docs/results/sim2real/validation.md
 	$(PY) -m terrain_estimation.tools.sim2real_results
 

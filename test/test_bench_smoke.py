@@ -70,3 +70,8 @@ def test_bench_quick_prints_every_row(capsys, tmp_path):
         assert r["steps"] > 0 and math.isfinite(r["median_us"]) and r["median_us"] > 0, r
     for r in rover["throughput"] + rover["simulator"]:
         assert math.isfinite(r["x_real_time"]) and r["x_real_time"] > 0 and r["steps"] > 0, r
+    # Sim-to-real section (--quick: one 6 s quarter-car bag diagnosed end to end).
+    assert any(line.startswith("Sim-to-real diagnosis") for line in lines), text
+    (s2r,) = figures["sim2real"]
+    assert s2r["vehicle"] == "quarter_car" and "skipped" not in s2r, s2r
+    assert math.isfinite(s2r["wall_s"]) and s2r["wall_s"] > 0 and s2r["candidates"] >= 9, s2r
