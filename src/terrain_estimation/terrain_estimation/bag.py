@@ -33,6 +33,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 __all__ = [
+    "bag_topics",
     "BagError",
     "BagMessage",
     "AtomicBagWriter",
@@ -107,6 +108,20 @@ class BagMessage:
     msgtype: str
     log_time_ns: int
     msg: Any
+
+
+def bag_topics(path: str | os.PathLike[str]) -> set[str]:
+    """Topics of a rosbag2 bag that hold at least one message (from the metadata; nothing decoded)."""
+    bag = Path(path)
+    if bag.is_file():
+        bag = bag.parent
+    if not bag.exists():
+        raise BagError(f"bag {str(bag)!r} does not exist")
+    try:
+        with Reader(bag) as reader:
+            return {c.topic for c in reader.connections if c.msgcount > 0}
+    except Exception as exc:  # rosbags' own errors: name the bag
+        raise BagError(f"bag {str(bag)!r} is unreadable: {type(exc).__name__}: {exc}") from exc
 
 
 def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) -> Iterator[BagMessage]:

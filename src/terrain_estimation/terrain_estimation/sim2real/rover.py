@@ -144,6 +144,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import signal
 
+from terrain_estimation.bag import bag_topics
 from terrain_estimation.models.rover import RoverParams
 from terrain_estimation.sim2real.model import Candidate, Channel, FitParameter, candidates_from_catalogue
 from terrain_estimation.sim2real.where import Sim2RealError
@@ -239,24 +240,6 @@ def _stamp(msg: Any) -> float:
     return float(msg.header.stamp.sec) + float(msg.header.stamp.nanosec) * 1e-9
 
 
-def _bag_topics(bag: str | Path) -> set[str]:
-    """Topics of a rosbag2 bag that hold messages (metadata only)."""
-    from rosbags.rosbag2 import Reader
-
-    from terrain_estimation.bag import BagError
-
-    path = Path(bag)
-    if path.is_file():
-        path = path.parent
-    if not path.exists():
-        raise BagError(f"bag {str(path)!r} does not exist")
-    try:
-        with Reader(path) as reader:
-            return {c.topic for c in reader.connections if c.msgcount > 0}
-    except Exception as exc:  # rosbags' own errors: name the bag
-        raise BagError(f"bag {str(path)!r} is unreadable: {type(exc).__name__}: {exc}") from exc
-
-
 def read_rover_bag(
     bag: str | Path,
     *,
@@ -283,7 +266,7 @@ def read_rover_bag(
         **{f"load_{w}": topic_name(namespace, f"wheel/{w}/load") for w in _WHEELS},
     }
     by_topic = {v: k for k, v in topics.items()}
-    present = _bag_topics(bag)
+    present = bag_topics(bag)
     missing = [t for t in topics.values() if t not in present]
     if missing:
         raise Sim2RealError(

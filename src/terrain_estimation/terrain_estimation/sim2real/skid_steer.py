@@ -93,6 +93,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from terrain_estimation.bag import bag_topics
 from terrain_estimation.sim2real.model import Candidate, Channel, FitParameter, candidates_from_catalogue
 from terrain_estimation.sim2real.where import Sim2RealError
 
@@ -688,24 +689,6 @@ def wheel_speeds_at(
     return np.column_stack([np.interp(imu_t, jt, wheel[:, i]) for i in range(2)])
 
 
-def _bag_topics(bag: str | Path) -> set[str]:
-    """Topics of a bag with at least one message (metadata only)."""
-    from rosbags.rosbag2 import Reader
-
-    from terrain_estimation.bag import BagError
-
-    path = Path(bag)
-    if path.is_file():
-        path = path.parent
-    if not path.exists():
-        raise BagError(f"bag {str(path)!r} does not exist")
-    try:
-        with Reader(path) as reader:
-            return {c.topic for c in reader.connections if c.msgcount > 0}
-    except Exception as exc:
-        raise BagError(f"bag {str(path)!r} is unreadable: {type(exc).__name__}: {exc}") from exc
-
-
 def read_skid_steer_bag(
     bag: str | Path,
     *,
@@ -725,7 +708,7 @@ def read_skid_steer_bag(
 
     imu_topic = topic_name(namespace, "imu")
     joint_topic = topic_name(namespace, "joint_states")
-    present = _bag_topics(bag)
+    present = bag_topics(bag)
     for topic in (imu_topic, joint_topic):
         if topic not in present:
             raise Sim2RealError(
