@@ -150,7 +150,13 @@ filter's posterior mean of k_tot is projected into the model's clamp range
 (a projection of the mean only, the covariance is kept); a non-finite
 posterior (which the clamped model should never produce) restarts the motion
 states as above and keeps the last finite k_tot (``counters.recoveries``).
-Every float of an estimate is finite.
+Every float of an estimate is finite. With ``config.divergence`` set, a
+:class:`~terrain_estimation.filters.faults.DivergenceMonitor` also watches
+for a filter that stays finite but diverges (windowed NIS outside its χ²
+band, covariance blow-up, gate lock-out) and, on any fault including the
+non-finite one, re-initialises the filter from the last good estimate
+(``counters.divergences``; :attr:`SoilStiffnessEstimator.fault` holds the
+reason until the filter is consistent again).
 """
 
 from __future__ import annotations
@@ -165,7 +171,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from terrain_estimation.filters.base import Array
+from terrain_estimation.filters.base import Array, UpdateInfo
+from terrain_estimation.filters.faults import DivergenceConfig, DivergenceMonitor
 from terrain_estimation.models.quarter_car import (
     LRVModel,
     LRVParams,
@@ -295,6 +302,14 @@ class SoilStiffnessEstimatorConfig:
         max_pending: bound of the queue of waiting accelerometer samples (the
             oldest is dropped beyond it); must exceed ``max_wait_s`` times the
             accelerometer rate (raw, before decimation).
+        divergence: divergence detection and recovery
+            (:class:`~terrain_estimation.filters.faults.DivergenceConfig`):
+            the windowed NIS against its χ² band, covariance blow-up, gate
+            lock-out, non-finite or broken state; on a divergence the filter
+            re-initialises from the last good estimate
+            (``counters.divergences``, :attr:`SoilStiffnessEstimator.fault`
+            until it is consistent again). None (default) keeps only the
+            non-finite recovery of the module docstring.
     """
 
     vehicle: Literal["quarter_car", "lrv"] = "quarter_car"
@@ -323,6 +338,7 @@ class SoilStiffnessEstimatorConfig:
     max_extrapolation_s: float = 0.005
     max_step_s: float = 0.5
     max_pending: int = 1000
+    divergence: DivergenceConfig | None = None
 
     def __post_init__(self) -> None:
         if self.vehicle not in ("quarter_car", "lrv"):
@@ -373,6 +389,8 @@ class SoilStiffnessEstimatorConfig:
                 raise ValueError(f"p0_diag must hold {n} finite positive variances")
         if self.gate_threshold is not None and not (self.gate_threshold > 0):
             raise ValueError("gate_threshold must be > 0 or None")
+        if self.divergence is not None and not isinstance(self.divergence, DivergenceConfig):
+            raise ValueError(f"divergence must be None or a DivergenceConfig, got {type(self.divergence).__name__}")
 
     @property
     def vehicle_params(self) -> QuarterCarParams | LRVParams:
@@ -435,6 +453,7 @@ class EstimatorCounters:
     predict_only: int = 0
     restarts: int = 0
     recoveries: int = 0
+    divergences: int = 0
     soil_changes: int = 0
     decimated: int = 0
     dropped_nonfinite: int = 0
@@ -638,11 +657,21 @@ class SoilStiffnessEstimator:
         self._detector = CusumDetector(self.config.change_drift, self.config.change_threshold)
         self._was_converged = False
         self._c: dict[str, int] = {f.name: 0 for f in dataclasses.fields(EstimatorCounters)}
+        cfg_div = self.config.divergence
+        self._monitor = DivergenceMonitor(cfg_div) if cfg_div is not None else None
 
     @property
     def counters(self) -> EstimatorCounters:
         """Health counters since the last reset."""
         return EstimatorCounters(**self._c)
+
+    @property
+    def fault(self) -> str | None:
+        """Why the filter was last found diverged, until it is consistent again; None when healthy.
+
+        Always None without ``config.divergence``.
+        """
+        return None if self._monitor is None else self._monitor.fault
 
     @property
     def last_estimate(self) -> SoilStiffnessEstimate | None:
@@ -776,6 +805,8 @@ class SoilStiffnessEstimator:
                     self._pending.popleft()
                     self._t_prev = t
                     self._state = self._initial_state(self._stiffness0, None)
+                    if self._monitor is not None:
+                        self._monitor.start(self._state)
                     continue
                 if self._pt or self._ready(t) == "drop":
                     self._pending.popleft()
@@ -949,6 +980,8 @@ class SoilStiffnessEstimator:
 
         prev_state = self._state
         nis, accepted = 0.0, False
+        update_dim = 0  # measurement size of the update (0: predict-only or failed)
+        failed = False
         try:
             prior = self.filter.predict(prev_state, self.model, u, dt)
             post = prior
@@ -971,6 +1004,7 @@ class SoilStiffnessEstimator:
                     post, info = self.filter.update(prior, z, model, u)
                 nis = float(info.nis)
                 accepted = bool(info.accepted)
+                update_dim = z.size
                 if accepted and cfg.gate_threshold is not None and not (nis <= cfg.gate_threshold):
                     accepted = False
                 if not accepted:
@@ -983,12 +1017,16 @@ class SoilStiffnessEstimator:
             # handled below exactly like a non-finite posterior.
             prior = post = _NonFinite(self.model.state_dim)
             nis, accepted = 0.0, False
+            failed = True
+        monitor_nis = nis
         if not math.isfinite(nis):
             nis = 0.0
 
         x = np.asarray(post.x, dtype=float)
         cov = np.asarray(post.covariance, dtype=float)
-        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(cov))):
+        if self._monitor is not None:
+            x, cov, accepted, nis = self._watch(post, x, cov, failed, update_dim, monitor_nis, accepted, nis)
+        elif not (np.all(np.isfinite(x)) and np.all(np.isfinite(cov))):
             self._c["recoveries"] += 1
             self._state = prev_state
             self._restart_motion()
@@ -1053,3 +1091,57 @@ class SoilStiffnessEstimator:
         self._last = est
         self._outbox.append(est)
         return est
+
+    def _watch(
+        self,
+        post: Any,
+        x: Array,
+        cov: Array,
+        failed: bool,
+        update_dim: int,
+        monitor_nis: float,
+        accepted: bool,
+        nis: float,
+    ) -> tuple[Array, Array, bool, float]:
+        """The step's posterior under the divergence monitor; sets ``self._state``.
+
+        The stiffness mean is projected into its range first (as without a
+        monitor), so the last good estimate is always a projected one. On a
+        divergence (including a failed filter step or a non-finite posterior)
+        the state is re-initialised from the last good estimate and the
+        update counts as not accepted.
+
+        Returns:
+            ``(x, cov, accepted, nis)`` of the state kept.
+        """
+        monitor = self._monitor
+        assert monitor is not None
+        if failed:
+            check = monitor.fail("filter step failed")
+        else:
+            if np.all(np.isfinite(x)):
+                k_c = self.model.project_stiffness_state(float(x[-1]))
+                if k_c != x[-1]:
+                    x = x.copy()
+                    x[-1] = k_c
+                    post = dataclasses.replace(post, x=x)
+            info = None
+            if update_dim:
+                info = UpdateInfo(
+                    innovation=np.zeros(update_dim),
+                    innovation_cov=np.eye(update_dim),
+                    nis=monitor_nis,
+                    accepted=accepted,
+                )
+            check = monitor.observe(post, info)
+        if not check.diverged:
+            self._state = post
+            return x, cov, accepted, nis
+        self._c["divergences"] += 1
+        self._state = monitor.recover(self.filter)
+        return (
+            np.asarray(self._state.x, dtype=float),
+            np.asarray(self._state.covariance, dtype=float),
+            False,
+            0.0,
+        )

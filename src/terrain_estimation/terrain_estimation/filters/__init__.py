@@ -16,7 +16,8 @@ immutable state value (see :mod:`.base`)::
 | :class:`SquareRootCubatureKalmanFilter` | ``SqrtGaussianState`` | ``sckf`` |
 
 Strong tracking and noise adaptation for the (AN-)STUKF are pure functions in
-:mod:`.adaptive`.
+:mod:`.adaptive`. Divergence detection and recovery from the last good
+estimate (on top of each filter's innovation gate) are in :mod:`.faults`.
 """
 
 from .adaptive import (
@@ -41,6 +42,14 @@ from .base import (
 )
 from .ckf import CubatureKalmanFilter
 from .ekf import ExtendedKalmanFilter
+from .faults import (
+    DivergenceCheck,
+    DivergenceConfig,
+    DivergenceMonitor,
+    guarded_step,
+    nis_band,
+    sqrt_factor_fault,
+)
 from .kalman import KalmanFilter
 from .sckf import SquareRootCubatureKalmanFilter
 from .sigma_points import (
@@ -95,4 +104,11 @@ __all__ = [
     "suboptimal_fading_factor",
     "strong_tracking_predict",
     "adapt_noise_sqrt",
+    # faults
+    "DivergenceConfig",
+    "DivergenceCheck",
+    "DivergenceMonitor",
+    "guarded_step",
+    "nis_band",
+    "sqrt_factor_fault",
 ]

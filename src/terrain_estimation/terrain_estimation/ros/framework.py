@@ -9,7 +9,8 @@ into messages. The framework provides the rest, the same for every vehicle:
 * subscriptions and publishers with the contract's QoS under the node's
   namespace;
 * ``/diagnostics`` (update rate, age of the last update, innovation
-  consistency, rejected input);
+  consistency, rejected input; ERROR while the adapter reports a fault,
+  e.g. a diverged filter re-converging, :attr:`AdapterHealth.errors`);
 * ``use_sim_time`` (the standard rclpy parameter) and, for simulators, the
   ``/clock`` they drive.
 
@@ -89,6 +90,10 @@ class AdapterHealth:
         warnings: conditions the adapter currently sees as degraded (each
             turns the diagnostic WARN and is shown in its message); the
             adapter sets and clears them.
+        errors: faults the adapter currently sees (e.g. the filter diverged
+            and is re-converging from the last good estimate: each turns the
+            diagnostic ERROR and is shown first in its message); the adapter
+            sets them and clears them once recovered (back to OK).
     """
 
     updates: int = 0
@@ -99,6 +104,7 @@ class AdapterHealth:
     status: str = ""
     values: dict[str, Any] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
 
     def reject(self, reason: str) -> None:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
@@ -311,6 +317,9 @@ class EstimatorNode(_ParamsMixin, Node):
         if health.warnings:
             level = diag.worst(level, diag.WARN)
             notes.extend(health.warnings)
+        if health.errors:
+            level = diag.worst(level, diag.ERROR)
+            notes[:0] = health.errors
         for reason, count in health.rejected.items():
             values[f"rejected: {reason}"] = count
         values.update(health.values)
