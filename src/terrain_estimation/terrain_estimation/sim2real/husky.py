@@ -4,7 +4,7 @@
 
 What it does
     1. Imports every run (``imu_XX.csv`` + ``pro_XX.csv``) into a contract bag
-       (:mod:`vehicle_sim.tools.borealtc`) under ``DIR/bags``.
+       (:mod:`vehicle_sim.tools.borealtc`) under ``DIR/bags`` (or ``--bags``).
     2. Builds the replay model of :mod:`terrain_estimation.sim2real.skid_steer`
        for each bag with the 4-wheel Husky of ``config/husky.yaml`` (two axles
        at ±wheelbase/2, rigid chassis: no load-transfer-dynamics effect).
@@ -251,6 +251,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--data", required=True, help="BorealTC folder (<TERRAIN>/imu_XX.csv, pro_XX.csv)")
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--config", help="Husky config (default config/husky.yaml)")
+    parser.add_argument("--bags", help="where the imported contract bags go (default OUT/bags)")
     parser.add_argument("--attribute", type=int, default=1, help="held-out runs per terrain given to the engine")
     parser.add_argument(
         "--attribute-seconds", type=float, default=30.0, help="first seconds of each such run given to the engine"
@@ -268,7 +269,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for run in runs:
         bag = convert_run(
             run,
-            out / "bags",
+            Path(args.bags) if args.bags else out / "bags",
             wheel_radius=cfg["vehicle.wheel_radius"],
             transmission_ratio=cfg["vehicle.transmission_ratio"],
         )
