@@ -98,6 +98,8 @@ class AttributionSettings:
         explained_shrinkage: An effect whose shrinkage interval's lower bound
             reaches this explains the gap even when a noise test still flags a
             remainder (a near-perfect but not exact model of the effect).
+        max_starts: Optimiser runs per fit: the base start plus the best
+            (lowest cost) of the ± and scan starts.
         grid_points: Points of the scan of each new parameter over its bounds
             that gives the fit one more start (0: no scan).
         channel_partner: A runner-up that shrinks some channel's held-out gap by
@@ -121,6 +123,7 @@ class AttributionSettings:
     channel_partner: float = 0.25
     explained_shrinkage: float = 0.9
     grid_points: int = 11
+    max_starts: int = 4
     where: WhereSettings = field(default_factory=WhereSettings)
     seed: int = 0
 
@@ -385,6 +388,12 @@ def fit(
                     grid_best, grid_cost = s, c
         if grid_best is not None:
             starts.append(grid_best)
+        # Screen the starts by their cost (one evaluation each) and run the optimiser from the
+        # base and the best others only: 2p ± starts of a 5-parameter effect would cost 11 fits.
+        if len(starts) > settings.max_starts:
+            costs = [0.5 * float(np.sum(fun(s) ** 2)) for s in starts[1:]]
+            order = np.argsort(costs)[: max(settings.max_starts - 1, 0)]
+            starts = [starts[0]] + [starts[1 + int(i)] for i in order]
         best_cost = math.inf
         for s in starts:
             # Keep the start strictly inside the bounds (least_squares requires it).
