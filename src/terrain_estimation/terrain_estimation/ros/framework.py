@@ -12,7 +12,31 @@ into messages. The framework provides the rest, the same for every vehicle:
   consistency, rejected input; ERROR while the adapter reports a fault,
   e.g. a diverged filter re-converging, :attr:`AdapterHealth.errors`);
 * ``use_sim_time`` (the standard rclpy parameter) and, for simulators, the
-  ``/clock`` they drive.
+  ``/clock`` they drive;
+* robustness (issue 7), the same for every estimator:
+
+  - **bad input**: every message is checked before the adapter sees it
+    (:class:`~terrain_estimation.ros.validation.InputGuard`: frame id,
+    stamp ahead of the clock, duplicated or out of order, non-finite
+    fields, covariance not PSD, accelerations in g or without gravity, as
+    declared by the adapter's :class:`TopicSpec`). A bad message is dropped
+    whole, counted per reason in ``/diagnostics`` (``input rejected: <topic>:
+    <field> <problem>``; WARN while new ones arrive) and logged with its
+    value, at most once per ``input.log_throttle`` per reason;
+  - **non-finite output**: an estimate holding a NaN or Inf is never
+    published (counted, ERROR);
+  - **clock jumps**: a jump of the node's clock backward by more than
+    ``time.backward_jump`` (a looping bag under ``--clock``) or forward by
+    more than ``time.forward_jump`` resets the adapter (``reset()``) and the
+    input checks' stamp history, reported at once as WARN on
+    ``/diagnostics`` and then counted (``clock_jumps_*``). The first
+    ``/clock`` of a sim-time node only starts its clock;
+  - **silent topics**: an input silent for longer than its
+    ``timeouts.<key>`` (clock time: sim time under ``use_sim_time``) turns
+    the diagnostics WARN, naming the topic and what the estimator does
+    meanwhile (:attr:`TopicSpec.on_timeout`: each vehicle documents it;
+    mostly it holds the last estimate and publishes nothing new); it clears
+    when the topic resumes.
 
 The offline runner (:mod:`terrain_estimation.tools.estimate`) drives the very
 same adapter from a bag, so live and offline estimates are identical.
@@ -21,6 +45,7 @@ same adapter from a bag, so live and offline estimates are identical.
 from __future__ import annotations
 
 import math
+import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -33,6 +58,8 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
+from rclpy.clock import JumpHandle, JumpThreshold, TimeJump
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
@@ -42,6 +69,7 @@ from terrain_estimation.params import ParameterError, ParamSpec, ParamValue
 from terrain_estimation.ros import diagnostics as diag
 from terrain_estimation.ros.qos import CLOCK_QOS, qos_for
 from terrain_estimation.ros.time import sec_to_stamp
+from terrain_estimation.ros.validation import InputGuard, Rejection, first_nonfinite
 
 __all__ = [
     "TopicSpec",
@@ -51,8 +79,14 @@ __all__ = [
     "SimulatorAdapter",
     "SimulatorNode",
     "declare_specs",
+    "input_specs",
+    "input_frame",
     "spin_node",
 ]
+
+
+_wall_time = time.monotonic
+"""The clock of the log throttle (wall time: a paused sim clock must not silence the logs)."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +100,22 @@ class TopicSpec:
         kind: ``"sensor"`` (sensor-data QoS) or ``"estimate"`` (reliable, depth 10).
         truth_fields: for an estimate, the fields that ``ground_truth/<topic>``
             gives the true value of (compared by the tools' summaries).
+
+    Checks of an input (:class:`~terrain_estimation.ros.validation.InputGuard`;
+    the defaults check nothing but the stamps):
+
+    Attributes:
+        frame_id: expected ``header.frame_id`` (namespace included); empty: any.
+        fields: numeric fields the adapter reads, which must be finite
+            (``"linear_acceleration.z"``; ``"velocity[wheel]"`` picks a
+            JointState entry by joint name).
+        covariances: 3x3 covariance arrays that must be symmetric positive
+            semi-definite unless marked not measured.
+        gravity_fields: specific-force components whose windowed mean must
+            have the magnitude ``gravity`` (m/s², REP 145).
+        gravity: [m/s^2] the vehicle's gravity.
+        timeout: [s] diagnostics WARN when the topic is silent for longer (0: never).
+        on_timeout: what the estimator does meanwhile (shown in the warning).
     """
 
     key: str
@@ -73,6 +123,47 @@ class TopicSpec:
     msg_type: type
     kind: str = "sensor"
     truth_fields: tuple[str, ...] = ()
+    frame_id: str = ""
+    fields: tuple[str, ...] = ()
+    covariances: tuple[str, ...] = ()
+    gravity_fields: tuple[str, ...] = ()
+    gravity: float = 9.80665
+    timeout: float = 0.0
+    on_timeout: str = ""
+
+
+def input_specs(key: str, topic: str, frame: str, timeout: float, on_timeout: str) -> tuple[ParamSpec, ParamSpec]:
+    """The two parameters of one input topic: its expected frame and its timeout.
+
+    ``frames.<key>``: expected ``header.frame_id`` (see :func:`input_frame`);
+    ``timeouts.<key>``: silence after which diagnostics turn WARN.
+    """
+    return (
+        ParamSpec(
+            f"frames.{key}",
+            frame,
+            f"expected header.frame_id of {topic}, prefixed with the namespace (a leading '/': taken as is; "
+            "empty: any); a message in another frame is rejected",
+        ),
+        ParamSpec(
+            f"timeouts.{key}",
+            timeout,
+            f"[s] diagnostics WARN when {topic} is silent for longer (0: never); meanwhile {on_timeout}",
+            0.0,
+            3600.0,
+        ),
+    )
+
+
+def input_frame(values: Mapping[str, ParamValue], namespace: str, key: str) -> str:
+    """The full expected frame of input ``key`` from ``frames.<key>`` ('' = not checked)."""
+    frame = str(values[f"frames.{key}"])
+    if not frame:
+        return ""
+    if frame.startswith("/"):
+        return frame.lstrip("/")
+    ns = namespace.strip("/")
+    return f"{ns}/{frame}" if ns else frame
 
 
 @dataclass
@@ -231,6 +322,58 @@ class EstimatorNode(_ParamsMixin, Node):
             0.5,
             0.9999,
         ),
+        ParamSpec(
+            "input.max_future_stamp",
+            1.0,
+            "[s] an input stamped further ahead of the node's clock (sim time: /clock) is rejected",
+            1e-3,
+            1e6,
+        ),
+        ParamSpec(
+            "input.gravity_tolerance",
+            0.7,
+            "[-] an accelerometer whose mean specific force over input.gravity_window differs from gravity by "
+            "more than this fraction is rejected (in g: 0.1 g; gravity removed: 0; ride vibration moves a "
+            "1 s mean by up to 30 %)",
+            0.01,
+            0.95,
+        ),
+        ParamSpec(
+            "input.gravity_window",
+            2.0,
+            "[s] window of the accelerometers' mean specific force (judged once half full; 0: no check)",
+            0.0,
+            60.0,
+        ),
+        ParamSpec(
+            "input.restart_after_out_of_order",
+            50,
+            "[-] this many consecutive out-of-order samples of one topic, each later than the one before, are a "
+            "source clock that went back (a bag looped without /clock): the estimator restarts on them (0: never)",
+            0,
+            1000000,
+        ),
+        ParamSpec(
+            "input.log_throttle",
+            5.0,
+            "[s] at most one log line per rejection reason (and per silent topic) in this much wall time",
+            0.0,
+            3600.0,
+        ),
+        ParamSpec(
+            "time.forward_jump",
+            5.0,
+            "[s] a forward jump of the node's clock (sim time: /clock) larger than this resets the estimator",
+            1e-3,
+            1e9,
+        ),
+        ParamSpec(
+            "time.backward_jump",
+            1e-3,
+            "[s] a backward jump of the node's clock larger than this (a looping bag) resets the estimator",
+            1e-9,
+            1e9,
+        ),
     )
 
     def __init__(
@@ -258,17 +401,128 @@ class EstimatorNode(_ParamsMixin, Node):
         self._diag_pub = self.create_publisher(diag.DiagnosticArray, "/diagnostics", 10)
         self._rate_window: deque[float] = deque(maxlen=100)  # stamps of recent updates
         self._last_updates = 0
+        # Input validation, output check, silence and clock jumps (issue 7).
+        self.guard = InputGuard(self.adapter.inputs, self.values)
+        self.outputs_dropped: dict[str, int] = {}
+        self.restarts: dict[str, int] = {}
+        self._rejected_reported = 0
+        self._last_log: dict[str, tuple[float, int]] = {}  # reason -> (wall time of last line, suppressed)
+        self._last_receipt: dict[str, float] = {}
+        self._watch_from: float | None = None  # clock time the silence of every topic is measured from
+        self._silent: set[str] = set()
+        self.clock_jumps: dict[str, int] = {"backward": 0, "forward": 0}
+        self._jump_note = ""  # WARN from a reset until the estimator's first update after it
+        self.last_reset = ""
+        self._updates_at_jump = 0
+        self._time_before_jump = 0
+        self._jump_handle: JumpHandle | None = None
+        self._register_jump_callback()
         self.create_timer(float(self.values["diagnostics.period"]), self.publish_diagnostics)
         self.add_on_set_parameters_callback(self._on_set)
         self.add_post_set_parameters_callback(self._after_set)
 
+    # -- input ------------------------------------------------------------------------
+    def _clock_s(self) -> float | None:
+        """The node's clock in seconds, None while it does not run (sim time before /clock)."""
+        ns = self.get_clock().now().nanoseconds
+        return ns * 1e-9 if ns > 0 else None
+
     def _callback_for(self, key: str) -> Callable[[Any], None]:
         def callback(msg: Any) -> None:
-            for out_key, out_msg in self.adapter.handle(key, msg):
-                self._output_publishers[out_key].publish(out_msg)
-            self.messages_handled += 1
+            try:
+                now = self._clock_s()
+                if now is not None:
+                    self._last_receipt[key] = now
+                rejection = self.guard.check(key, msg, now)
+                if rejection is not None:
+                    self._on_rejection(rejection)
+                    return
+                for out_key, out_msg in self.adapter.handle(key, msg):
+                    self._publish(out_key, out_msg)
+            finally:
+                self.messages_handled += 1
 
         return callback
+
+    def _throttled(self, reason: str, line: str, level: str = "warn") -> None:
+        """Log ``line`` unless ``reason`` was logged less than ``input.log_throttle`` ago (wall time)."""
+        now = _wall_time()
+        last, suppressed = self._last_log.get(reason, (-math.inf, 0))
+        if now - last < float(self.values["input.log_throttle"]):
+            self._last_log[reason] = (last, suppressed + 1)
+            return
+        if suppressed:
+            line += f" ({suppressed} more since the last line)"
+        self._last_log[reason] = (now, 0)
+        getattr(self.get_logger(), level)(line)
+
+    def _on_rejection(self, rejection: Rejection) -> None:
+        self._throttled(rejection.reason, f"rejected {rejection.text}")
+        if rejection.rebase:
+            self.restarts[rejection.reason] = self.restarts.get(rejection.reason, 0) + 1
+            self._reset_estimator()
+            self._jump_note = f"{rejection.topic}: stamps went back to {rejection.value}: estimator reset"
+            self.last_reset = self._jump_note
+            self._updates_at_jump = self.adapter.health.updates
+            self.get_logger().warn(self._jump_note)
+        elif rejection.restart:
+            # Input of this kind may already be inside the filter: start again without it.
+            self.restarts[rejection.reason] = self.restarts.get(rejection.reason, 0) + 1
+            self._reset_estimator()
+            self.get_logger().warn(f"estimator restarted: {rejection.reason}")
+
+    def _publish(self, key: str, msg: Any) -> None:
+        """Publish ``msg`` unless a float in it is not finite (then count and log it: never published)."""
+        bad = first_nonfinite(msg)
+        if bad is not None:
+            topic = next(o.topic for o in self.adapter.outputs if o.key == key)
+            reason = f"{topic}: {bad[0]} not finite"
+            self.outputs_dropped[reason] = self.outputs_dropped.get(reason, 0) + 1
+            self._throttled(reason, f"not published: {topic}: {bad[0]} = {bad[1]!r} is not finite", "error")
+            return
+        self._output_publishers[key].publish(msg)
+
+    def _reset_estimator(self) -> None:
+        self.adapter.reset()
+        self._last_updates = 0
+
+    # -- clock jumps ------------------------------------------------------------------------
+    def _register_jump_callback(self) -> None:
+        if self._jump_handle is not None:
+            self._jump_handle.unregister()
+        threshold = JumpThreshold(
+            min_forward=Duration(nanoseconds=round(float(self.values["time.forward_jump"]) * 1e9)),
+            min_backward=Duration(nanoseconds=-max(1, round(float(self.values["time.backward_jump"]) * 1e9))),
+            on_clock_change=False,
+        )
+        self._jump_handle = self.get_clock().create_jump_callback(
+            threshold, pre_callback=self._before_jump, post_callback=self._on_jump
+        )
+
+    def _before_jump(self) -> None:
+        self._time_before_jump = self.get_clock().now().nanoseconds
+
+    def _on_jump(self, jump: TimeJump) -> None:
+        """Reset the estimator on a clock jump (a looping bag, a skipped stretch)."""
+        delta = jump.delta.nanoseconds * 1e-9
+        now = self._clock_s()
+        self._last_receipt.clear()
+        self._watch_from = now
+        self._silent.clear()
+        if self._time_before_jump <= 0:
+            return  # the first /clock of a sim-time node: its clock starts, nothing to reset
+        direction = "backward" if delta < 0 else "forward"
+        self.clock_jumps[direction] += 1
+        self._reset_estimator()
+        self.guard.reset()
+        self._updates_at_jump = self.adapter.health.updates
+        self._jump_note = (
+            f"clock jumped {direction} by {abs(delta):.6g} s (to {now if now is not None else 0.0:.6g} s): "
+            "estimator reset"
+        )
+        self.last_reset = self._jump_note
+        self.get_logger().warn(self._jump_note)
+        self.publish_diagnostics()
 
     def _after_set(self, params: list[Parameter]) -> None:
         changed = [p for p in params if p.name in self._specs]
@@ -280,6 +534,10 @@ class EstimatorNode(_ParamsMixin, Node):
         # A parameter of the model or filter changed: rebuild from the new
         # values. The filter restarts; say so rather than mix two models.
         self.adapter = self._make_adapter(self.values, self.get_namespace())
+        self._last_updates = 0
+        self.guard = InputGuard(self.adapter.inputs, self.values)
+        self._rejected_reported = 0
+        self._register_jump_callback()
         self.get_logger().info("parameters " + ", ".join(p.name for p in changed) + " changed: estimator restarted")
 
     def diagnostic_status(self) -> diag.DiagnosticStatus:
@@ -322,6 +580,7 @@ class EstimatorNode(_ParamsMixin, Node):
             notes[:0] = health.errors
         for reason, count in health.rejected.items():
             values[f"rejected: {reason}"] = count
+        level = self._input_diagnostics(level, notes, values, now)
         values.update(health.values)
         message = "; ".join(notes) if notes else (health.status or "estimating")
         return diag.make_status(
@@ -331,6 +590,59 @@ class EstimatorNode(_ParamsMixin, Node):
             message,
             values,
         )
+
+    def _input_diagnostics(self, level: bytes, notes: list[str], values: dict[str, Any], now: float) -> bytes:
+        """Rejected input, dropped output, silent topics and clock jumps (part of :meth:`diagnostic_status`)."""
+        guard = self.guard
+        total = sum(guard.rejected.values())
+        values["input_accepted"] = guard.accepted
+        values["input_rejected"] = total
+        for reason, count in guard.rejected.items():
+            values[f"input rejected: {reason}"] = count
+        new = total - self._rejected_reported
+        self._rejected_reported = total
+        if new > 0:
+            level = diag.worst(level, diag.WARN)
+            notes.append(f"{new} input messages rejected since the last report")
+        for reason, count in self.restarts.items():
+            values[f"estimator restarts: {reason}"] = count
+        if self.outputs_dropped:
+            level = diag.worst(level, diag.ERROR)
+            notes.insert(0, f"{sum(self.outputs_dropped.values())} non-finite estimates not published")
+            for reason, count in self.outputs_dropped.items():
+                values[f"output dropped: {reason}"] = count
+        values["clock_jumps_backward"] = self.clock_jumps["backward"]
+        values["clock_jumps_forward"] = self.clock_jumps["forward"]
+        if self.last_reset:
+            values["last_reset"] = self.last_reset
+        if self._jump_note and self.adapter.health.updates > self._updates_at_jump:
+            self._jump_note = ""  # estimating again
+        if self._jump_note:
+            level = diag.worst(level, diag.WARN)
+            notes.append(self._jump_note)
+        if self._clock_s() is None:
+            return level  # sim time before /clock: silence cannot be measured
+        if self._watch_from is None:
+            self._watch_from = now
+        silent = []
+        for spec in self.adapter.inputs:
+            if spec.timeout <= 0.0:
+                continue
+            age = now - self._last_receipt.get(spec.key, self._watch_from)
+            if age > spec.timeout:
+                silent.append(spec.topic)
+                level = diag.worst(level, diag.WARN)
+                what = "silent" if spec.key in self._last_receipt else "never received"
+                note = f"{spec.topic} {what} for {age:.3g} s (timeout {spec.timeout:g} s)"
+                notes.append(note + (f": {spec.on_timeout}" if spec.on_timeout else ""))
+                if spec.key not in self._silent:
+                    self._silent.add(spec.key)
+                    self._throttled(f"silent {spec.key}", note)
+            elif spec.key in self._silent:
+                self._silent.discard(spec.key)
+                self.get_logger().info(f"{spec.topic} resumed")
+        values["silent_topics"] = ", ".join(silent) if silent else "none"
+        return level
 
     def publish_diagnostics(self) -> None:
         self._diag_pub.publish(diag.make_array(self.get_clock().now().to_msg(), [self.diagnostic_status()]))

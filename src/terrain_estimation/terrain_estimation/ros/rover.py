@@ -46,7 +46,11 @@ first one), so its stamp says how recent the data are.
 core; a non-finite value, a missing joint, a wrong array length or a stamp
 out of order is rejected and counted in the diagnostics as
 ``"<topic>: <field> = <value> …"``. The core keeps every published float
-finite.
+finite. Before the adapter, the node checks every message too (frames
+``frames.<key>``, stamps, finite fields, IMU covariances and gravity:
+:mod:`terrain_estimation.ros.validation`); while a stream is silent for
+longer than ``timeouts.<key>`` the diagnostics WARN and the estimate holds
+(:data:`ON_TIMEOUT`).
 """
 
 from __future__ import annotations
@@ -74,7 +78,7 @@ from terrain_estimation.models.rover_estimators import (
     WheelForceProcessNoise,
 )
 from terrain_estimation.params import ParamSpec, ParamValue
-from terrain_estimation.ros.framework import AdapterHealth, TopicSpec
+from terrain_estimation.ros.framework import AdapterHealth, TopicSpec, input_frame, input_specs
 from terrain_estimation.ros.time import sec_to_stamp, stamp_to_ns
 from terrain_msgs.msg import TerrainResponseModel, WheelTerrain, WheelTerrainArray
 
@@ -477,11 +481,32 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
+_ON_TIMEOUT = (
+    "windows lacking its samples are skipped (estimator.min_window_fraction): the estimate holds; a gap "
+    "longer than estimator.max_gap re-initialises the filters"
+)
+#: What the estimator does while an input is silent (shown in the timeout warning): the same for every stream.
+ON_TIMEOUT: dict[str, str] = dict.fromkeys(
+    ("imu", "joint_states", "velocimeter", "load_front", "load_middle", "load_rear"), _ON_TIMEOUT
+)
+
+_INPUT_SPECS: tuple[ParamSpec, ...] = (
+    *input_specs("imu", "imu", "imu_link", 0.5, _ON_TIMEOUT),
+    *input_specs("joint_states", "joint_states", "", 0.5, _ON_TIMEOUT),
+    *input_specs("velocimeter", "velocimeter", "base_link", 0.5, _ON_TIMEOUT),
+    *(
+        spec
+        for w in ("front", "middle", "rear")
+        for spec in input_specs(f"load_{w}", f"wheel/{w}/load", f"{w}_load_cell", 0.5, _ON_TIMEOUT)
+    ),
+)
+
+
 def specs_for(kind: str = "rover") -> tuple[ParamSpec, ...]:
     """The estimator's parameter specs (one vehicle kind)."""
     if kind != "rover":
         raise ValueError(f"unknown rover vehicle kind {kind!r}")
-    return VEHICLE_SPECS_ROVER + _ESTIMATOR_SPECS
+    return VEHICLE_SPECS_ROVER + _ESTIMATOR_SPECS + _INPUT_SPECS
 
 
 PARAMETERS = specs_for()
@@ -693,11 +718,45 @@ class RoverAdapter:
         self.bogie_joint = str(values["joints.bogie"])
         self.wheel_joints = tuple(str(values[f"joints.{w}_wheel"]) for w in WHEELS)
         self.two_axis = self.config.load_cell_axes == 2
+        joints = (self.bogie_joint, *self.wheel_joints)
+
+        def spec(key: str, topic: str, msg_type: type, **checks: Any) -> TopicSpec:
+            return TopicSpec(
+                key,
+                topic,
+                msg_type,
+                frame_id=input_frame(values, namespace, key),
+                timeout=_f(values, f"timeouts.{key}"),
+                on_timeout=ON_TIMEOUT[key],
+                **checks,
+            )
+
         self.inputs: Sequence[TopicSpec] = (
-            TopicSpec("imu", "imu", Imu),
-            TopicSpec("joint_states", "joint_states", JointState),
-            TopicSpec("velocimeter", "velocimeter", TwistStamped),
-            *(TopicSpec(f"load_{w}", f"wheel/{w}/load", WrenchStamped) for w in ("front", "middle", "rear")),
+            spec(
+                "imu",
+                "imu",
+                Imu,
+                fields=("linear_acceleration.x", "linear_acceleration.z", "angular_velocity.y"),
+                covariances=("linear_acceleration_covariance", "angular_velocity_covariance"),
+                gravity_fields=("linear_acceleration.x", "linear_acceleration.z"),
+                gravity=_f(values, "vehicle.gravity"),
+            ),
+            spec(
+                "joint_states",
+                "joint_states",
+                JointState,
+                fields=(*(f"position[{j}]" for j in joints), *(f"effort[{j}]" for j in self.wheel_joints)),
+            ),
+            spec("velocimeter", "velocimeter", TwistStamped, fields=("twist.linear.x",)),
+            *(
+                spec(
+                    f"load_{w}",
+                    f"wheel/{w}/load",
+                    WrenchStamped,
+                    fields=("wrench.force.z", "wrench.force.x") if self.two_axis else ("wrench.force.z",),
+                )
+                for w in ("front", "middle", "rear")
+            ),
         )
         self.outputs: Sequence[TopicSpec] = (
             TopicSpec(

@@ -10,7 +10,12 @@ Topics (CONTRACT.md, skid-steer section), relative to the vehicle namespace:
 Each IMU message is one filter step with the latest wheel speeds (zero-order
 hold, :class:`~terrain_estimation.estimators.skid_steer.SkidSteerEstimator`).
 Input the core rejects (non-finite values, stamps out of order) is counted in
-the diagnostics with the topic, field and value, never passed on.
+the diagnostics with the topic, field and value, never passed on. Before the
+adapter, the node checks every message (frame ``frames.<key>``, stamps,
+finite fields, covariances, gravity in ``linear_acceleration``:
+:mod:`terrain_estimation.ros.validation`); while a topic is silent for longer
+than ``timeouts.<key>`` the diagnostics WARN and the estimator does what
+:data:`ON_TIMEOUT` says (it holds).
 """
 
 from __future__ import annotations
@@ -30,7 +35,7 @@ from terrain_estimation.estimators.skid_steer import (
 from terrain_estimation.filters.adaptive import StrongTrackingConfig
 from terrain_estimation.models.skid_steer import SkidSteerParams
 from terrain_estimation.params import ParamSpec, ParamValue
-from terrain_estimation.ros.framework import AdapterHealth, TopicSpec
+from terrain_estimation.ros.framework import AdapterHealth, TopicSpec, input_frame, input_specs
 from terrain_estimation.ros.time import sec_to_stamp, stamp_to_ns
 from terrain_msgs.msg import SkidSteerState
 
@@ -162,11 +167,25 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
+#: What the estimator does while an input is silent (shown in the timeout warning).
+ON_TIMEOUT: dict[str, str] = {
+    "imu": "no filter steps: odom and skid_steer/state hold (nothing is published); a gap longer than "
+    "estimator.max_step restarts the filter",
+    "joint_states": "IMU samples whose wheel speeds are older than estimator.max_wheel_speed_age are skipped: "
+    "the estimate holds",
+}
+
+_INPUT_SPECS: tuple[ParamSpec, ...] = (
+    *input_specs("imu", "imu", "imu_link", 0.5, ON_TIMEOUT["imu"]),
+    *input_specs("joint_states", "joint_states", "", 0.5, ON_TIMEOUT["joint_states"]),
+)
+
+
 def specs_for(kind: str = "skid_steer") -> tuple[ParamSpec, ...]:
     """The estimator's parameter specs (one vehicle kind)."""
     if kind != "skid_steer":
         raise ValueError(f"unknown skid-steer vehicle kind {kind!r}")
-    return VEHICLE_SPECS_SKID_STEER + _ESTIMATOR_SPECS
+    return VEHICLE_SPECS_SKID_STEER + _ESTIMATOR_SPECS + _INPUT_SPECS
 
 
 PARAMETERS = specs_for()
@@ -307,8 +326,27 @@ class SkidSteerAdapter:
         self.left_joint = str(values["joints.left_motor"])
         self.right_joint = str(values["joints.right_motor"])
         self.inputs: Sequence[TopicSpec] = (
-            TopicSpec("imu", "imu", Imu),
-            TopicSpec("joint_states", "joint_states", JointState),
+            TopicSpec(
+                "imu",
+                "imu",
+                Imu,
+                frame_id=input_frame(values, namespace, "imu"),
+                fields=("linear_acceleration.x", "linear_acceleration.y", "angular_velocity.z"),
+                covariances=("linear_acceleration_covariance", "angular_velocity_covariance"),
+                gravity_fields=("linear_acceleration.x", "linear_acceleration.y", "linear_acceleration.z"),
+                gravity=_f(values, "vehicle.gravity"),
+                timeout=_f(values, "timeouts.imu"),
+                on_timeout=ON_TIMEOUT["imu"],
+            ),
+            TopicSpec(
+                "joint_states",
+                "joint_states",
+                JointState,
+                frame_id=input_frame(values, namespace, "joint_states"),
+                fields=(f"velocity[{self.left_joint}]", f"velocity[{self.right_joint}]"),
+                timeout=_f(values, "timeouts.joint_states"),
+                on_timeout=ON_TIMEOUT["joint_states"],
+            ),
         )
         self.outputs: Sequence[TopicSpec] = (
             TopicSpec("odom", "odom", Odometry, "estimate"),

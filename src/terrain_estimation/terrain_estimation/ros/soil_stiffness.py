@@ -10,6 +10,12 @@ one instant, so they are paired by identical header stamps (the
 simulator and a hardware-synchronised IMU pair stamp them so). A body sample
 whose wheel partner has not arrived within ``estimator.pair_timeout`` of a
 newer sample is used alone (a body-only update) and counted in diagnostics.
+
+Before the adapter, the node checks every message (frames ``frames.<key>``,
+stamps, finite fields, accelerometer covariances and gravity:
+:mod:`terrain_estimation.ros.validation`); while a topic is silent for longer
+than ``timeouts.<key>`` the diagnostics WARN and the estimator does what
+:data:`ON_TIMEOUT` says.
 """
 
 from __future__ import annotations
@@ -30,7 +36,7 @@ from terrain_estimation.estimators.soil_stiffness import (
 )
 from terrain_estimation.models.quarter_car import LRVParams, QuarterCarParams
 from terrain_estimation.params import ParamSpec, ParamValue
-from terrain_estimation.ros.framework import AdapterHealth, TopicSpec
+from terrain_estimation.ros.framework import AdapterHealth, TopicSpec, input_frame, input_specs
 from terrain_estimation.ros.time import sec_to_stamp, stamp_to_ns
 from terrain_msgs.msg import SoilStiffness
 
@@ -245,10 +251,38 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
+#: What the estimator does while an input is silent (CONTRACT.md topics; shown in the timeout warning).
+ON_TIMEOUT: dict[str, str] = {
+    "imu_body": "no filter steps, the estimate holds (nothing is published); a gap longer than "
+    "estimator.max_step restarts the motion states",
+    "imu_wheel": "body-only updates after estimator.pair_timeout (predicting the wheel, correcting with the body)",
+    "profile": "steps wait estimator.max_wait for the road, then are dropped: the estimate holds",
+    "joint_states": "the reported travel speed holds (the filter does not use it)",
+}
+
+#: (key, topic, message type, default frame, default timeout [s], fields read).
+_INPUTS: tuple[tuple[str, str, type, str, float, tuple[str, ...]], ...] = (
+    ("imu_body", "imu/body", Imu, "body_imu", 0.5, ("linear_acceleration.z",)),
+    ("imu_wheel", "imu/wheel", Imu, "wheel_imu", 0.5, ("linear_acceleration.z",)),
+    ("profile", "terrain/profile", PointStamped, "odom", 0.5, ("point.x", "point.z")),
+    ("joint_states", "joint_states", JointState, "", 0.5, ("velocity[wheel]",)),
+)
+
+
+def _input_keys(kind: str) -> tuple[str, ...]:
+    return tuple(key for key, *_ in _INPUTS if kind == "quarter_car" or key != "imu_wheel")
+
+
 def specs_for(kind: str) -> tuple[ParamSpec, ...]:
     """The estimator's parameter specs for ``kind`` (quarter_car | lrv)."""
     vehicle = VEHICLE_SPECS_LRV if kind == "lrv" else VEHICLE_SPECS_QUARTER_CAR
-    return vehicle + _filter_specs(kind) + _ESTIMATOR_SPECS
+    inputs = [
+        spec
+        for key, topic, _type, frame, timeout, _fields in _INPUTS
+        if key in _input_keys(kind)
+        for spec in input_specs(key, topic, frame, timeout, ON_TIMEOUT[key])
+    ]
+    return vehicle + _filter_specs(kind) + _ESTIMATOR_SPECS + tuple(sorted(inputs, key=lambda s: s.name))
 
 
 PARAMETERS = specs_for("quarter_car")
@@ -379,14 +413,24 @@ class SoilStiffnessAdapter:
         self.frame_id = f"{ns}/{values['frames.base_link']}" if ns else str(values["frames.base_link"])
         self.wheel_radius = _f(values, "vehicle.wheel_radius")
         self.pair_timeout_ns = round(_f(values, "estimator.pair_timeout") * 1e9)
-        inputs = [
-            TopicSpec("imu_body", "imu/body", Imu),
-            TopicSpec("profile", "terrain/profile", PointStamped),
-            TopicSpec("joint_states", "joint_states", JointState),
-        ]
-        if self.kind == "quarter_car":
-            inputs.insert(1, TopicSpec("imu_wheel", "imu/wheel", Imu))
-        self.inputs: Sequence[TopicSpec] = tuple(inputs)
+        gravity = _f(values, "estimator.gravity")
+        keys = _input_keys(self.kind)
+        self.inputs: Sequence[TopicSpec] = tuple(
+            TopicSpec(
+                key,
+                topic,
+                msg_type,
+                frame_id=input_frame(values, namespace, key),
+                fields=fields,
+                covariances=("linear_acceleration_covariance",) if msg_type is Imu else (),
+                gravity_fields=fields if msg_type is Imu else (),
+                gravity=gravity,
+                timeout=_f(values, f"timeouts.{key}"),
+                on_timeout=ON_TIMEOUT[key],
+            )
+            for key, topic, msg_type, _frame, _timeout, fields in _INPUTS
+            if key in keys
+        )
         self.outputs: Sequence[TopicSpec] = (
             TopicSpec("soil_stiffness", "soil_stiffness", SoilStiffness, "estimate", truth_fields=("k_s", "k_tot")),
         )
