@@ -107,3 +107,45 @@ def test_bias_floor_scales_with_the_channel_noise() -> None:
     biased = _channel("yaw", "/yaw", noise + 0.002, np.zeros_like(noise), 100.0, sigma**2, WhereSettings(), 1, "rad/s")
     assert not clean.gaps
     assert any("bias" in g and "rad/s" in g for g in biased.gaps)
+
+
+def test_epoch_stamps_keep_their_spacing(tmp_path: Path) -> None:
+    """Real bags carry epoch stamps (~1.7e9 s): read as float seconds they resolve only 2.4e-7 s.
+
+    The replays take stamps relative to the first one, in integer nanoseconds, so a 1 kHz
+    profile keeps a 1 ms period exactly (float seconds gave 0.99993 ms: a 1.3 ms drift of the
+    replay over an 18 s bag, which the validation suite's LRV controls showed as a gap).
+    """
+    import numpy as np
+    from geometry_msgs.msg import PointStamped
+    from sensor_msgs.msg import Imu, JointState
+
+    from terrain_estimation.ros.time import ns_to_stamp
+    from terrain_estimation.sim2real.model import StampOrigin
+    from terrain_estimation.sim2real.where import _read
+
+    start = 1_732_760_302_708_794_534
+    bag = tmp_path / "epoch"
+    with AtomicBagWriter(bag) as writer:
+        for k in range(2000):
+            t = start + k * 1_000_000
+            p = PointStamped()
+            p.header.stamp = ns_to_stamp(t)
+            p.point.x, p.point.z = 0.01 * k, 0.0
+            writer.write("/lrv/terrain/profile", p, t)
+            if k % 10 == 0:
+                imu = Imu()
+                imu.header.stamp = ns_to_stamp(t)
+                imu.linear_acceleration.z = 9.81
+                writer.write("/lrv/imu/body", imu, t)
+                js = JointState()
+                js.header.stamp = ns_to_stamp(t)
+                js.name, js.position, js.velocity = ["wheel"], [0.0], [10.0]
+                writer.write("/lrv/joint_states", js, t)
+    data = _read(bag, "/lrv", False, 0.4)
+    assert np.max(np.abs(np.diff(data.profile_t) - 1e-3)) < 1e-12
+    assert data.profile_t[0] == 0.0 and np.max(np.abs(np.diff(data.body_t) - 1e-2)) < 1e-12
+    clock = StampOrigin()
+    first = Imu()
+    first.header.stamp = ns_to_stamp(start)
+    assert clock(first) == 0.0 and abs(clock.origin - start * 1e-9) < 1e-6

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,10 +43,36 @@ __all__ = [
     "Channel",
     "FitParameter",
     "ReplayModel",
+    "StampOrigin",
     "candidates_from_catalogue",
 ]
 
 FloatArray = NDArray[np.float64]
+
+
+class StampOrigin:
+    """Header stamps as float seconds from the first stamp seen, the difference taken in integer nanoseconds.
+
+    A float64 resolves an epoch stamp (about 1.7e9 s) only to 2.4e-7 s: sample
+    periods computed from such floats are off by up to 2e-4 of a 1 ms period,
+    and a replay whose time base is built from them drifts by milliseconds
+    over a bag (against a 25 m/s² ride signal a 1 ms drift is a gap of its
+    own). Every replay reads its stamps through one of these.
+    """
+
+    def __init__(self) -> None:
+        self.origin_ns: int | None = None
+
+    def __call__(self, msg: Any) -> float:
+        ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+        if self.origin_ns is None:
+            self.origin_ns = ns
+        return (ns - self.origin_ns) * 1e-9
+
+    @property
+    def origin(self) -> float:
+        """The origin in seconds of the bag clock (0 before the first stamp)."""
+        return 0.0 if self.origin_ns is None else self.origin_ns * 1e-9
 
 
 @dataclass(frozen=True)

@@ -146,7 +146,7 @@ from scipy import signal
 
 from terrain_estimation.bag import bag_topics
 from terrain_estimation.models.rover import RoverParams
-from terrain_estimation.sim2real.model import Candidate, Channel, FitParameter, candidates_from_catalogue
+from terrain_estimation.sim2real.model import Candidate, Channel, FitParameter, StampOrigin, candidates_from_catalogue
 from terrain_estimation.sim2real.where import Sim2RealError
 
 __all__ = [
@@ -236,10 +236,6 @@ def series_from_run(run: Any) -> RoverSeries:
     )
 
 
-def _stamp(msg: Any) -> float:
-    return float(msg.header.stamp.sec) + float(msg.header.stamp.nanosec) * 1e-9
-
-
 def read_rover_bag(
     bag: str | Path,
     *,
@@ -276,10 +272,11 @@ def read_rover_bag(
         )
     rows: dict[str, list[tuple[float, ...]]] = {k: [] for k in topics}
     order = [names["bogie"], names["rear"], names["middle"], names["front"]]
+    clock = StampOrigin()  # seconds from the first stamp (epoch stamps lose precision as floats)
     for item in read_bag(bag, list(by_topic)):
         key = by_topic[item.topic]
         msg = item.msg
-        t = _stamp(msg)
+        t = clock(msg)
         if key == "imu":
             a, w = msg.linear_acceleration, msg.angular_velocity
             rows[key].append((t, float(a.x), float(a.z), float(w.y)))

@@ -94,7 +94,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from terrain_estimation.bag import bag_topics
-from terrain_estimation.sim2real.model import Candidate, Channel, FitParameter, candidates_from_catalogue
+from terrain_estimation.sim2real.model import Candidate, Channel, FitParameter, StampOrigin, candidates_from_catalogue
 from terrain_estimation.sim2real.where import Sim2RealError
 
 __all__ = [
@@ -663,10 +663,6 @@ class SkidSteerBagData:
     notes: list[str] = field(default_factory=list)
 
 
-def _stamp(msg: Any) -> float:
-    return float(msg.header.stamp.sec) + float(msg.header.stamp.nanosec) * 1e-9
-
-
 def wheel_speeds_at(
     imu_t: FloatArray,
     joint_t: FloatArray,
@@ -718,9 +714,10 @@ def read_skid_steer_bag(
             )
     imu_rows: list[tuple[float, float, float, float, float]] = []
     joint_rows: list[tuple[float, float, float]] = []
+    clock = StampOrigin()  # seconds from the first stamp (epoch stamps lose precision as floats)
     for item in read_bag(bag, [imu_topic, joint_topic]):
         msg = item.msg
-        stamp = _stamp(msg)
+        stamp = clock(msg)
         if item.topic == imu_topic:
             a, w = msg.linear_acceleration, msg.angular_velocity
             row = (stamp, float(a.x), float(a.y), float(a.z), float(w.z))
@@ -779,6 +776,7 @@ def read_skid_steer_bag(
         transmission_ratio=transmission_ratio,
         wheel_speed_timing=wheel_speed_timing,
         source=str(bag),
+        stamp_origin=clock.origin,
     )
 
 
@@ -792,9 +790,11 @@ def bag_data_from_arrays(
     transmission_ratio: float,
     wheel_speed_timing: str = "period_mean",
     source: str = "arrays",
+    stamp_origin: float = 0.0,
 ) -> SkidSteerBagData:
-    """:class:`SkidSteerBagData` from arrays (stamps in s on any common clock); keeps the IMU samples inside the
-    span of the joint reports (no extrapolation of the inputs)."""
+    """:class:`SkidSteerBagData` from arrays (stamps in s on any common clock, best relative to
+    ``stamp_origin`` on the bag clock); keeps the IMU samples inside the span of the joint reports
+    (no extrapolation of the inputs)."""
     imu_stamp = np.asarray(imu_stamp, dtype=float)
     joint_stamp = np.asarray(joint_stamp, dtype=float)
     if np.any(np.diff(imu_stamp) <= 0.0):
@@ -818,7 +818,7 @@ def bag_data_from_arrays(
         omega=omega,
         joint_t=joint_stamp - start,
         motor_velocity=np.asarray(motor_velocity, dtype=float),
-        start_stamp=start,
+        start_stamp=start + stamp_origin,
         source=source,
         transmission_ratio=transmission_ratio,
         timing=wheel_speed_timing,

@@ -248,10 +248,6 @@ def _jsonable(value: Any) -> Any:
 # ---------------------------------------------------------------------------
 
 
-def _stamp(msg: Any) -> float:
-    return float(msg.header.stamp.sec) + float(msg.header.stamp.nanosec) * 1e-9
-
-
 @dataclass
 class _BagData:
     body_t: FloatArray
@@ -275,6 +271,9 @@ def _read(bag: str | Path, namespace: str, two_dof: bool, wheel_radius: float) -
         names["wheel"] = topic_name(namespace, "imu/wheel")
     by_topic = {v: k for k, v in names.items()}
     data: dict[str, list[tuple[float, ...]]] = {k: [] for k in names}
+    from terrain_estimation.sim2real.model import StampOrigin
+
+    _stamp = StampOrigin()  # seconds from the first stamp: epoch stamps lose precision as floats
     for item in read_bag(bag, list(by_topic)):
         key = by_topic[item.topic]
         msg = item.msg
