@@ -30,7 +30,7 @@ export OMP_NUM_THREADS ?= 1
 
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc reproduce-skid reproduce-rover bench bags clean distclean constraints validate-sim2real sim2real-real-data
+.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc reproduce-skid reproduce-rover bench bench-load bags clean distclean constraints validate-sim2real sim2real-real-data
 
 setup: $(PKGS_STAMP)
 
@@ -68,6 +68,9 @@ test: setup lint typecheck unit
 bench: setup  ## per-step filter cost (ours vs filterpy), bag throughput, simulator speed
 	$(PY) -m terrain_estimation.tools.bench
 
+bench-load: setup  ## many vehicles and load: latency, dropped input, CPU per vehicle (issue 7) -> docs/results/robustness.md
+	$(PY) -m terrain_estimation.tools.bench_load --out docs/results/robustness.md
+
 # Long reproductions of the papers' results (not part of make test).
 reproduce: reproduce-qc reproduce-skid reproduce-rover
 
@@ -98,7 +101,8 @@ sim2real-real-data: setup
 			--out docs/results/sim2real/cmu; \
 	else echo "sim2real-real-data: $(REAL_DATA)/cmu_single_wheel not found, CMU rig skipped"; fi
 	@if [ -d "$(REAL_DATA)/borealtc" ]; then \
-		$(PY) -m terrain_estimation.sim2real.husky --data $(REAL_DATA)/borealtc --out docs/results/sim2real/husky; \
+		$(PY) -m terrain_estimation.sim2real.husky --data $(REAL_DATA)/borealtc --out docs/results/sim2real/husky \
+			--bags out/husky_bags; \
 	else echo "sim2real-real-data: $(REAL_DATA)/borealtc not found, Husky runs skipped"; fi
 	$(PY) -m terrain_estimation.tools.sim2real_results
 

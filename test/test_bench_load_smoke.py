@@ -1,0 +1,43 @@
+"""Smoke test of ``python -m terrain_estimation.tools.bench_load --quick``: every row is printed.
+
+No timing, latency, CPU or loss figure is asserted: they depend on the machine
+and its load (the benchmark prints them; ``make bench-load`` writes
+``docs/results/robustness.md``). Only that the run completes, prints each row
+with finite numbers, and writes the same rows as JSON and Markdown.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+pytest.importorskip("vehicle_sim")
+
+from terrain_estimation.tools import bench_load  # noqa: E402
+
+
+def test_bench_load_quick_prints_every_row(capsys, tmp_path):
+    out_json = tmp_path / "load.json"
+    out_md = tmp_path / "robustness.md"
+    assert bench_load.main(["--quick", "--json", str(out_json), "--out", str(out_md)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("row "))
+    table = lines[header + 1 :]
+    for label in bench_load.row_labels(quick=True):
+        (row,) = [line for line in table if line.split(" | ")[0].strip() == label]
+        cells = [c.strip() for c in row.split(" | ")[1:]]
+        assert len(cells) == len(bench_load.HEADER) - 1, row
+        numbers = [float(c.split()[0].split("/")[0]) for c in cells]
+        assert all(math.isfinite(v) for v in numbers), row
+    assert any(line.startswith("offline ceiling") for line in lines)
+
+    figures = json.loads(out_json.read_text())
+    assert [r["row"] for r in figures["rows"]] == bench_load.row_labels(quick=True)
+    assert figures["machine"]["cpu_count"] >= 1
+    for r in figures["rows"]:
+        assert r["published"] > 0, r
+    text = out_md.read_text()
+    assert "python -m terrain_estimation.tools.bench_load --quick" in text
+    assert all(label in text for label in bench_load.row_labels(quick=True))
