@@ -54,3 +54,36 @@ def test_p0_of_the_stiffness_state_is_checked_against_its_units(vehicle):
         estimator_config({**values, "filter.p0_diag": [*p0[:-1], 50e3**2]})
     cfg = estimator_config({**values, "filter.stiffness_state": "k_tot", "filter.p0_diag": [*p0[:-1], 50e3**2]})
     assert cfg.vehicle_params.stiffness_state == "k_tot"
+
+
+@pytest.mark.parametrize("vehicle", sorted(VEHICLES))
+def test_every_declared_parameter_has_a_description_and_a_range(vehicle):
+    """Issue 7 item 4: a number has a finite range on at least one side, a string its choices or a free text."""
+    entry, sim = VEHICLES[vehicle], get_simulator(vehicle)
+    specs = (
+        tuple(EstimatorNode.COMMON_SPECS) + tuple(entry.specs) + tuple(SimulatorNode.COMMON_SPECS) + tuple(sim.specs)
+    )
+    missing = []
+    for spec in specs:
+        if len(spec.description.strip()) < 8:
+            missing.append(f"{spec.name}: no description")
+        if spec.kind in (int, float) and spec.min_value is None and spec.max_value is None:
+            missing.append(f"{spec.name}: a number without a range")
+    assert not missing, missing
+
+
+def test_invalid_update_of_a_real_node_is_refused_with_the_reason(rclpy_context):
+    """A live quarter-car estimator refuses an out-of-range and a wrong-type update and keeps its value."""
+    from rclpy.parameter import Parameter
+
+    entry = VEHICLES["quarter_car"]
+    node = EstimatorNode(
+        entry.node_name, tuple(entry.specs), entry.make_adapter, namespace="/qc", context=rclpy_context
+    )
+    try:
+        before = node.values["filter.accel_noise_variance"]
+        result = node.set_parameters([Parameter("filter.accel_noise_variance", value=-1.0)])[0]
+        assert not result.successful and "filter.accel_noise_variance" in result.reason, result.reason
+        assert node.values["filter.accel_noise_variance"] == before
+    finally:
+        node.destroy_node()
