@@ -34,6 +34,7 @@ from terrain_estimation.estimators.soil_stiffness import (
     SoilStiffnessEstimator,
     SoilStiffnessEstimatorConfig,
 )
+from terrain_estimation.filters.faults import DivergenceConfig
 from terrain_estimation.models.quarter_car import LRVParams, QuarterCarParams
 from terrain_estimation.params import ParamSpec, ParamValue
 from terrain_estimation.ros.framework import AdapterHealth, TopicSpec, input_frame, input_specs
@@ -177,6 +178,29 @@ _FILTER_SPECS: tuple[ParamSpec, ...] = (
         choices=("exact", "paper"),
     ),
     ParamSpec("filter.gate_threshold", 0.0, "[-] Mahalanobis (NIS) gate on updates; 0 disables", 0.0, 1e6),
+    ParamSpec(
+        "filter.divergence_window",
+        0,
+        "[updates] divergence monitor: windowed mean NIS against its chi2 band, covariance blow-up and gate "
+        "lock-out; on a divergence the filter restarts from the last good estimate (diagnostic ERROR, then OK); "
+        "0 disables (default: the reproductions run without it)",
+        0,
+        10000,
+    ),
+    ParamSpec(
+        "filter.divergence_probability",
+        0.999,
+        "[-] two-sided probability of the windowed mean NIS band of the divergence monitor",
+        0.5,
+        0.999999,
+    ),
+    ParamSpec(
+        "filter.divergence_persistence",
+        10,
+        "[updates] consecutive out-of-band windows that make a divergence",
+        1,
+        10000,
+    ),
 )
 
 _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
@@ -357,6 +381,16 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SoilStiffnessEstimator
         )
     k_tot0 = _f(values, "filter.k_tot0")
     gate = _f(values, "filter.gate_threshold")
+    window = int(values["filter.divergence_window"])
+    divergence = (
+        DivergenceConfig(
+            window=window,
+            probability=_f(values, "filter.divergence_probability"),
+            persistence=int(values["filter.divergence_persistence"]),
+        )
+        if window > 0
+        else None
+    )
     return SoilStiffnessEstimatorConfig(
         vehicle=values["vehicle.kind"],
         filter=values["filter.type"],
@@ -367,6 +401,7 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SoilStiffnessEstimator
         gravity=_f(values, "estimator.gravity"),
         convergence_rel_std=_f(values, "estimator.convergence_rel_std"),
         gate_threshold=gate if gate > 0 else None,
+        divergence=divergence,
         class_log_std=_f(values, "estimator.class_log_std"),
         unknown_weight=_f(values, "estimator.unknown_weight"),
         change_drift=_f(values, "estimator.change_drift"),
@@ -532,7 +567,17 @@ class SoilStiffnessAdapter:
                 dropped_out_of_order=c.dropped_out_of_order,
                 dropped_no_profile=c.dropped_no_profile,
                 profile_rejected=c.profile_rejected,
+                divergences=c.divergences,
             )
+        fault = self.estimator.fault
+        h.errors = (
+            [
+                f"filter diverged ({fault}): restarted from the last good estimate "
+                f"({self.estimator.counters.divergences} divergence(s) so far)"
+            ]
+            if fault
+            else []
+        )
         return estimates
 
 
