@@ -26,6 +26,7 @@ import numpy as np
 
 from terrain_estimation.bag import AtomicBagWriter, BagError, read_bag
 from terrain_estimation.params import ParameterError
+from terrain_estimation.ros.validation import InputGuard, first_nonfinite
 from terrain_estimation.vehicles import VEHICLES, estimator_parameters, get_vehicle
 
 __all__ = ["EstimationRun", "estimate_bag", "run_adapter", "main", "numeric_fields", "topic_name"]
@@ -71,6 +72,9 @@ class EstimationRun:
     inputs_read: int = 0
     truth: dict[str, list[Any]] = field(default_factory=dict)  # estimate topic -> truth messages
     truth_fields: dict[str, tuple[str, ...]] = field(default_factory=dict)  # estimate topic -> compared fields
+    rejected: dict[str, int] = field(default_factory=dict)  # input check reason -> messages dropped
+    restarts: int = 0  # estimator restarts asked by the input checks
+    outputs_dropped: dict[str, int] = field(default_factory=dict)  # non-finite estimates never written
 
     def messages(self, topic: str) -> list[Any]:
         return [m for t, m, _ in self.outputs if t == topic]
@@ -82,8 +86,15 @@ def run_adapter(
     bag: str | Path,
     *,
     progress: bool = False,
+    values: Mapping[str, Any] | None = None,
 ) -> EstimationRun:
     """Feed ``adapter`` every input message of ``bag``, in recorded order.
+
+    With the node's parameter ``values`` the messages pass the same input checks
+    as in the live node (:class:`~terrain_estimation.ros.validation.InputGuard`;
+    the clock for the future-stamp check is the bag's log time), rejections are
+    counted in ``run.rejected`` and a non-finite estimate is never kept, so that
+    live and offline runs agree on bad input too.
 
     Raises:
         BagError: the bag is unreadable (the message says how much was read).
@@ -94,6 +105,7 @@ def run_adapter(
         topic_name(namespace, "ground_truth/" + s.topic): topic_name(namespace, s.topic) for s in adapter.outputs
     }
     run = EstimationRun(truth_fields={outputs[s.key]: s.truth_fields for s in adapter.outputs})
+    guard = InputGuard(adapter.inputs, values) if values is not None else None
     started = time.monotonic()
     last_report = started
     for item in read_bag(bag, list(inputs) + list(truth_topics)):
@@ -101,7 +113,21 @@ def run_adapter(
             run.truth.setdefault(truth_topics[item.topic], []).append(item.msg)
             continue
         run.inputs_read += 1
-        for key, out in adapter.handle(inputs[item.topic], item.msg):
+        key_in = inputs[item.topic]
+        if guard is not None:
+            rejection = guard.check(key_in, item.msg, item.log_time_ns * 1e-9)
+            if rejection is not None:
+                run.rejected[rejection.reason] = run.rejected.get(rejection.reason, 0) + 1
+                if rejection.restart or rejection.rebase:
+                    run.restarts += 1
+                    adapter.reset()
+                continue
+        for key, out in adapter.handle(key_in, item.msg):
+            bad = first_nonfinite(out)
+            if bad is not None:
+                reason = f"{outputs[key]}: {bad[0]} not finite"
+                run.outputs_dropped[reason] = run.outputs_dropped.get(reason, 0) + 1
+                continue
             run.outputs.append((outputs[key], out, item.log_time_ns))
         if progress and time.monotonic() - last_report > 2.0:
             last_report = time.monotonic()
@@ -126,7 +152,7 @@ def estimate_bag(
     ns = namespace if namespace is not None else entry.namespace
     values = estimator_parameters(entry, config, overrides)
     adapter = entry.make_adapter(values, ns)
-    return run_adapter(adapter, ns, bag, progress=progress)
+    return run_adapter(adapter, ns, bag, progress=progress, values=values)
 
 
 def _stamp(msg: Any) -> float:
@@ -169,6 +195,12 @@ def truth_errors(
 
 def _summary_lines(run: EstimationRun) -> Iterator[str]:
     yield f"input messages read: {run.inputs_read}"
+    for reason, count in sorted(run.rejected.items()):
+        yield f"  rejected {count}: {reason}"
+    if run.restarts:
+        yield f"  estimator restarted {run.restarts} time(s) by the input checks"
+    for reason, count in sorted(run.outputs_dropped.items()):
+        yield f"  not written {count}: {reason}"
     topics = sorted({t for t, _, _ in run.outputs})
     for topic in topics:
         msgs = run.messages(topic)
