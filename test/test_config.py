@@ -87,3 +87,24 @@ def test_invalid_update_of_a_real_node_is_refused_with_the_reason(rclpy_context)
         assert node.values["filter.accel_noise_variance"] == before
     finally:
         node.destroy_node()
+
+
+def test_sensor_queue_depth_is_a_parameter(rclpy_context):
+    """qos.sensor_depth sets every sensor subscription's queue (a fast replay needs the whole backlog queued)."""
+    from rclpy.parameter import Parameter
+
+    entry = VEHICLES["quarter_car"]
+    node = EstimatorNode(
+        entry.node_name,
+        tuple(entry.specs),
+        entry.make_adapter,
+        namespace="/qc",
+        parameter_overrides=[Parameter("qos.sensor_depth", value=6000)],
+        context=rclpy_context,
+    )
+    try:
+        depths = {s.topic_name: s.qos_profile.depth for s in node.subscriptions if "clock" not in s.topic_name}
+        assert depths and set(depths.values()) == {6000}, depths
+        assert not node.set_parameters([Parameter("qos.sensor_depth", value=10)])[0].successful  # fixed at start
+    finally:
+        node.destroy_node()

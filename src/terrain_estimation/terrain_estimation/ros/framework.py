@@ -307,6 +307,15 @@ class EstimatorNode(_ParamsMixin, Node):
     """
 
     COMMON_SPECS: tuple[ParamSpec, ...] = (
+        ParamSpec(
+            "qos.sensor_depth",
+            200,
+            "[messages] queue depth of each sensor subscription (best effort): a replay faster than the "
+            "filter drops messages beyond it (ros/qos.py)",
+            1,
+            1_000_000,
+            read_only=True,
+        ),
         ParamSpec("diagnostics.period", 1.0, "[s] period of /diagnostics", 0.05, 60.0),
         ParamSpec(
             "diagnostics.stale_after",
@@ -397,7 +406,12 @@ class EstimatorNode(_ParamsMixin, Node):
             o.key: self.create_publisher(o.msg_type, o.topic, qos_for(o.kind)) for o in self.adapter.outputs
         }
         for spec in self.adapter.inputs:
-            self.create_subscription(spec.msg_type, spec.topic, self._callback_for(spec.key), qos_for(spec.kind))
+            self.create_subscription(
+                spec.msg_type,
+                spec.topic,
+                self._callback_for(spec.key),
+                qos_for(spec.kind, int(self.values["qos.sensor_depth"])),
+            )
         self._diag_pub = self.create_publisher(diag.DiagnosticArray, "/diagnostics", 10)
         self._rate_window: deque[float] = deque(maxlen=100)  # stamps of recent updates
         self._last_updates = 0

@@ -327,9 +327,13 @@ def host_main(spec: dict[str, Any]) -> int:
     if spec.get("sensor_depth"):
         from terrain_estimation.ros import framework
 
-        depth = int(spec["sensor_depth"])
+        bench_depth = int(spec["sensor_depth"])
         default_qos_for = framework.qos_for
-        framework.qos_for = lambda kind: sensor_qos(depth) if kind == "sensor" else default_qos_for(kind)
+
+        def patched_qos_for(kind: str, depth: int = 0) -> Any:  # the bench's depth, not the node's
+            return sensor_qos(bench_depth) if kind == "sensor" else default_qos_for(kind)
+
+        framework.qos_for = patched_qos_for
     context = Context()
     rclpy.init(context=context)
     first = int(spec.get("first", 0))
