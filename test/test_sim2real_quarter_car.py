@@ -121,3 +121,43 @@ def test_missing_topic_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFi
     code = sim2real_main([str(cut), "--vehicle", "quarter_car", "-q"])
     assert code == 2
     assert "/quarter_car/terrain/profile" in capsys.readouterr().err
+
+
+def test_lrv_road_is_the_conditional_mean_of_the_profile() -> None:
+    # Band-limited road (≤ 60 Hz) under white profile noise: the Wiener gain passes the band and
+    # stops the noise-only band, and the spectral rate of a smooth signal is exact.
+    from terrain_estimation.sim2real.quarter_car import _spectral, _wiener_road
+
+    rng = np.random.default_rng(0)
+    dt, sigma_h = 1e-3, 1e-4
+    t = np.arange(12000) * dt
+    road = sum(1e-3 / (1 + k) * np.sin(2 * np.pi * (1 + 3 * k) * t + k) for k in range(20))
+    f, gain, width = _wiener_road(road + rng.normal(0.0, sigma_h, t.size), dt, sigma_h)
+    assert np.all(width > 0)
+    assert np.max(gain[f > 120.0]) == 0.0  # no road there: nothing passed
+    assert np.min(gain[(f > 2.0) & (f < 55.0)]) > 0.5
+    value, rate = _spectral(0.3 + 0.1 * t + 1e-3 * np.sin(2 * np.pi * 5 * t), dt, None)
+    inner = slice(100, -100)
+    assert np.allclose(rate[inner], (0.1 + 2e-3 * np.pi * 5 * np.cos(2 * np.pi * 5 * t))[inner], atol=1e-6)
+    assert np.allclose(value, 0.3 + 0.1 * t + 1e-3 * np.sin(2 * np.pi * 5 * t), atol=1e-9)
+
+
+def test_lrv_control_bag_gives_input_filters_and_gains_nothing_to_fit(tmp_path: Path) -> None:
+    # Issue 6: on a bag without any effect the LRV replay (ground damper: c/m on the road rate)
+    # must leave residuals at its noise budget that neither a road low-pass (tire enveloping)
+    # nor a gain on the high frequencies (sprung mass) can reduce: the replay is E[ÿ | profile].
+    bag = _bag(tmp_path, "lrv_nominal", "lrv")
+    model = build_model(bag, "lrv", k_s=soil_by_name("lunar_regolith").k_s)
+    nominal = _power_ratio(model, {})["body"]
+    assert 0.85 < nominal < 1.15
+    for effect, parameter, value in [
+        ("tire_enveloping", "tire_contact_length", 0.02),
+        ("tire_enveloping", "tire_contact_length", 0.05),
+        ("sprung_mass_change", "sprung_mass_change", 0.03),
+        ("sprung_mass_change", "sprung_mass_change", -0.03),
+    ]:
+        effects = {effect: {parameter: value}}
+        pred = model.predict(effects, {})["body"]
+        sel = model.times["body"] >= model.warmup
+        power = float(np.mean(((model.measured["body"] - pred)[sel] / model.channels[0].noise_std) ** 2))
+        assert power > nominal - 0.01, (effect, value, power, nominal)

@@ -1,11 +1,27 @@
 """Replay model of a quarter-car (2-DOF) or LRV (1-DOF) bag, with every catalogue effect.
 
 The nominal plant of :mod:`vehicle_sim.plants.quarter_car` (MODELS.md A.1, A.7)
-is driven by the bag's measured road (``terrain/profile``, Savitzky–Golay
-smoothed as in :mod:`~terrain_estimation.sim2real.where`) on the profile's own
+is driven by the bag's measured road (``terrain/profile``) on the profile's own
 time grid, integrated by RK4 at that step (JIT-compiled), from rest at the
 first road height. Its body (and wheel) specific forces are compared with
 ``imu/body`` (and ``imu/wheel``) at the accelerometer stamps.
+
+Road input
+    * Quarter car: Savitzky–Golay smoothed as in :mod:`~terrain_estimation.sim2real.where`.
+    * LRV: the conditional mean of the road given the profile, E[h | profile]
+      and E[ḣ | profile] (non-causal Wiener smoother, :func:`_wiener_road`).
+      Its ground damper puts c/m = 20 s⁻¹ on the road *rate*, so the replay's
+      error is that of the estimated ḣ (errors in variables). A fixed smoothing
+      window leaves an error that is correlated with the profile, which an
+      input filter (``tire_enveloping``) or a gain (``sprung_mass_change``)
+      then partly removes on a bag without any effect. With the conditional
+      mean the replay of the linear plant is E[ÿ | profile]: its error is
+      orthogonal to every function of the profile, so no effect acting on
+      the road can reduce it; what remains is a known noise (the budget).
+      The road spectrum S is the profile's own (Welch, median-smoothed over a
+      relative bandwidth) less the sensor's white floor N = 2 σ_h² Δt; the
+      gain is S / (S + N), the rate its spectral derivative. The accelerometer
+      is never used to estimate the road.
 
 Nuisance parameter
     ``ln_k_s``: the soil stiffness k_s (N/m) is what the vehicle's estimator is
@@ -29,8 +45,9 @@ Effects (:data:`vehicle_sim.effects.CATALOGUE`, same physics as the plant)
 
 Noise budget per channel: the config's accelerometer variance R plus what
 the profile sensor's noise (``estimator.profile_noise_std``) does through the
-replay's direct feed-through (wheel channel: k_tot/m_2 times the smoothed
-noise; LRV body: k_tot/m and the ground damper's share).
+replay (quarter-car wheel channel: k_tot/m_2 times the smoothed noise; LRV
+body: the road's posterior error N·S/(S + N) through the body's transfer
+function ÿ/h, with the effect's mass, soil stiffness, contact length and scale).
 """
 
 from __future__ import annotations
@@ -43,7 +60,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
-from scipy import signal
+from scipy import signal, stats
 
 from terrain_estimation.sim2real.model import Candidate, Channel, FitParameter, candidates_from_catalogue
 from terrain_estimation.sim2real.where import Sim2RealError, _odd, _read, _savgol
@@ -55,6 +72,72 @@ __all__ = ["QuarterCarReplay", "build_model"]
 FloatArray = NDArray[np.float64]
 
 FRICTION_VELOCITY_SCALE = 0.02  # m/s, as vehicle_sim.plants.quarter_car
+ROAD_PSD_SEGMENT = 1024  # samples per Welch segment of the road spectrum (1 Hz bins at 1 kHz)
+ROAD_PSD_BANDWIDTH = 0.05  # relative half-width of the running median over frequency (road spectra are smooth in log f)
+
+
+def _periodic(x: FloatArray) -> tuple[FloatArray, float, FloatArray]:
+    """(ramp, slope per sample, odd periodic extension of x − ramp): no jump in value or slope at the ends."""
+    n = x.size
+    slope = float(x[-1] - x[0]) / (n - 1)
+    ramp = x[0] + slope * np.arange(n)
+    d = x - ramp
+    return ramp, slope, np.concatenate([d, -d[-2:0:-1]])
+
+
+def _spectral(
+    x: FloatArray, dt: float, gain: Callable[[FloatArray], FloatArray] | None
+) -> tuple[FloatArray, FloatArray]:
+    """(G x, d/dt (G x)) of a signal on a uniform grid, G a zero-phase gain of frequency (None: 1)."""
+    n = x.size
+    ramp, slope, ext = _periodic(x)
+    spec = np.fft.rfft(ext)
+    f = np.asarray(np.fft.rfftfreq(ext.size, dt), dtype=float)
+    if gain is not None:
+        spec = spec * gain(f)
+    rate_spec = 2j * np.pi * f * spec
+    if ext.size % 2 == 0:
+        rate_spec[-1] = 0.0  # the Nyquist bin has no defined derivative
+    value = ramp + np.fft.irfft(spec, ext.size)[:n]
+    rate = slope / dt + np.fft.irfft(rate_spec, ext.size)[:n]
+    return np.asarray(value, dtype=float), np.asarray(rate, dtype=float)
+
+
+def _wiener_road(raw: FloatArray, dt: float, sigma_h: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(frequencies, Wiener gain S/(S+N), bin widths) of the road seen through white profile noise σ_h.
+
+    S: the profile's Welch spectrum P (linear detrend, Hann, 50 % overlap)
+    with a running median over ±:data:`ROAD_PSD_BANDWIDTH` of each frequency
+    (at least ±2 bins; a median keeps the road's band edge sharp), less the
+    white floor N = 2 σ_h² Δt (one-sided). A bin counts as road only where
+    P exceeds N significantly (one-sided 1 % χ² bound for the smoothed
+    estimate's degrees of freedom): above the road's band edge P scatters
+    about N, and a gain fitted to that scatter would pass noise (weighted by
+    ω² through the damper) while the budget charged it as road.
+    """
+    _, _, ext = _periodic(raw)
+    d = ext[: raw.size]
+    nper = int(min(ROAD_PSD_SEGMENT, d.size))
+    f, p = signal.welch(d, fs=1.0 / dt, nperseg=nper, detrend="linear")
+    n_seg = max(1, (d.size - nper) // (nper // 2) + 1)
+    smooth = np.empty_like(p)
+    bins = np.empty_like(p)
+    for i, fi in enumerate(f):
+        half = max(ROAD_PSD_BANDWIDTH * fi, 2.0 * (f[1] - f[0]))
+        lo, hi = np.searchsorted(f, fi - half), np.searchsorted(f, fi + half, side="right")
+        smooth[i] = np.median(p[lo:hi])
+        bins[i] = hi - lo
+    floor = 2.0 * sigma_h**2 * dt
+    if floor <= 0.0:
+        return np.asarray(f, dtype=float), np.ones_like(p, dtype=float), np.full(f.size, float(f[1] - f[0]))
+    # Degrees of freedom as in where._band_stats (Hann, 50 % overlap: ~0.9 of 2 per bin and
+    # segment, neighbouring bins worth 1/1.5), a median worth 2/π of a mean.
+    dof = np.maximum(2.0, 2.0 * 0.9 * n_seg * bins / 1.5 * (2.0 / np.pi))
+    bound = stats.chi2.ppf(0.99, dof) / dof
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gain = np.where(smooth > bound * floor, 1.0 - floor / smooth, 0.0)
+    gain = np.nan_to_num(gain, nan=0.0)
+    return np.asarray(f, dtype=float), np.asarray(gain, dtype=float), np.full(f.size, float(f[1] - f[0]))
 
 
 @njit(cache=True)
@@ -204,6 +287,8 @@ class QuarterCarReplay:
         warmup: float,
         notes: list[str],
         noise: tuple[float, float, float, float],
+        road_error: tuple[FloatArray, FloatArray, FloatArray] | None = None,
+        speed_mean: float = 1.0,
     ) -> None:
         self.vehicle = vehicle
         self.two_dof = vehicle == "quarter_car"
@@ -228,6 +313,9 @@ class QuarterCarReplay:
         self._envelope_cache: dict[float, tuple[FloatArray, FloatArray]] = {}
         # (R, σ_h² of the profile, Σ smoothing², Σ derivative²): the noise budget's pieces.
         self._noise = noise
+        # LRV: (frequencies, posterior error density of the road N·S/(S+N), bin widths).
+        self._road_error = road_error
+        self._speed_mean = speed_mean
         self.channels = [Channel(c.name, c.topic, c.unit, self.noise_std_for({}, {})[c.name]) for c in self.channels]
 
     def with_k_s(self, k_s: float) -> QuarterCarReplay:
@@ -256,10 +344,11 @@ class QuarterCarReplay:
         """Noise budget σ per channel: R plus the profile noise fed straight through the replay.
 
         2-DOF wheel: (k_tot/m₂)² σ_h² Σc² + (c_t/m₂)² σ_h² Σd² (c: the
-        smoothing filter, d: the road-rate filter); LRV body: (k_tot/m)² σ_h² Σc²
-        + (c/m)² σ_h² Σd² with the ground damper; the 2-DOF body has no direct
-        feed-through. k_tot uses the stiffness at the static point (n·k_s for
-        the nonlinear soil).
+        smoothing filter, d: the road-rate filter); the 2-DOF body has no
+        direct feed-through. LRV body, replayed on E[road | profile]: the road's
+        posterior error density N·S/(S+N) through |ÿ/h|² (ground or inertial
+        damper, the contact-length average, the accelerometer scale). k_tot
+        uses the stiffness at the static point (n·k_s for the nonlinear soil).
         """
         v = self._values
         e = self._effect_values(effects)
@@ -282,7 +371,17 @@ class QuarterCarReplay:
             if str(v.get("vehicle.damper_reference", "ground")) == "ground"
             else 0.0
         )
-        return {"body": math.sqrt(r_var + s2 * ((kt / m) ** 2 * c2 + (c / m) ** 2 * d2))}
+        if self._road_error is None:
+            return {"body": math.sqrt(r_var + s2 * ((kt / m) ** 2 * c2 + (c / m) ** 2 * d2))}
+        f, density, width = self._road_error
+        w = 2.0 * np.pi * f
+        ground = (kt + 1j * w * c) if c > 0.0 else kt
+        transfer = -(w**2) * ground / (kt + 1j * w * float(v["vehicle.suspension_damping"]) - m * w**2)
+        length = e.get("tire_contact_length", 0.0)
+        if length > 1e-4:
+            transfer = transfer * np.sinc(f * length / self._speed_mean)  # moving average over L at the mean speed
+        scale = (1.0 + e.get("accel_scale_body", 0.0)) ** 2
+        return {"body": math.sqrt(r_var + scale * float(np.sum(np.abs(transfer) ** 2 * density * width)))}
 
     # -- effects ----------------------------------------------------------
 
@@ -426,10 +525,22 @@ def build_model(
         rate = np.asarray(signal.savgol_filter(raw, n_d, 3, deriv=1, delta=dt_p, mode="interp"), dtype=float)
         return hs, rate
 
-    h, h_rate = smooth(h_raw)
     coeffs = _savgol(n_h, 2, 0, dt_p)
     d_coeffs = _savgol(n_d, 3, 1, dt_p)
     noise = (r_var, sigma_h**2, float(np.sum(coeffs**2)), float(np.sum(d_coeffs**2)))
+    road_error = None
+    if two_dof:
+        h, h_rate = smooth(h_raw)
+    else:
+        f_w, gain_w, width_w = _wiener_road(h_raw, dt_p, sigma_h)
+        h, h_rate = _spectral(h_raw, dt_p, lambda f: np.interp(f, f_w, gain_w))
+        road_error = (f_w, 2.0 * sigma_h**2 * dt_p * gain_w, width_w)
+
+        def smooth(raw: FloatArray) -> tuple[FloatArray, FloatArray]:
+            # A linear map (the contact-length average) of E[h | profile] is already its own
+            # conditional mean: only differentiated, not smoothed again.
+            return _spectral(raw, dt_p, None)
+
     raw = [("body", topic_name(ns, "imu/body"), data.body_t, data.body)]
     if two_dof and data.wheel_t is not None and data.wheel is not None:
         raw.append(("wheel", topic_name(ns, "imu/wheel"), data.wheel_t, data.wheel))
@@ -454,4 +565,6 @@ def build_model(
         warmup,
         notes,
         noise,
+        road_error,
+        speed_mean,
     )
