@@ -364,6 +364,9 @@ def fit(
         effects, nuisance = _unpack(layout, x, candidates)
         return problem.stacked(problem.residuals(effects, nuisance), problem.train)
 
+    def _cost(x: FloatArray) -> float:
+        return 0.5 * float(np.sum(fun(x) ** 2))
+
     best_x = base
     if len(layout):
         starts = [base]
@@ -378,20 +381,23 @@ def fit(
         # A coarse scan of each new parameter over its whole range: local starts miss
         # the global minimum of periodic costs (a delay against a narrow-band signal, the
         # location of a soil change). Its best point, if better than the base, is one more start.
-        grid_best, grid_cost = None, 0.5 * float(np.sum(fun(base) ** 2))
-        for i in free:
-            for v in np.linspace(lo[i], hi[i], settings.grid_points):
-                s = base.copy()
-                s[i] = v
-                c = 0.5 * float(np.sum(fun(s) ** 2))
-                if c < grid_cost:
-                    grid_best, grid_cost = s, c
-        if grid_best is not None:
-            starts.append(grid_best)
+        known: dict[int, float] = {}  # start index -> cost already evaluated
+        if free and settings.grid_points > 0:
+            grid_best, grid_cost = None, _cost(base)
+            for i in free:
+                for v in np.linspace(lo[i], hi[i], settings.grid_points):
+                    s = base.copy()
+                    s[i] = v
+                    c = _cost(s)
+                    if c < grid_cost:
+                        grid_best, grid_cost = s, c
+            if grid_best is not None:
+                known[len(starts)] = grid_cost
+                starts.append(grid_best)
         # Screen the starts by their cost (one evaluation each) and run the optimiser from the
         # base and the best others only: 2p ± starts of a 5-parameter effect would cost 11 fits.
         if len(starts) > settings.max_starts:
-            costs = [0.5 * float(np.sum(fun(s) ** 2)) for s in starts[1:]]
+            costs = [known[k] if k in known else _cost(starts[k]) for k in range(1, len(starts))]
             order = np.argsort(costs)[: max(settings.max_starts - 1, 0)]
             starts = [starts[0]] + [starts[1 + int(i)] for i in order]
         best_cost = math.inf

@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from scipy import signal, stats
 
 from terrain_estimation.bag import read_bag
+from terrain_estimation.sim2real.model import StampOrigin
 from terrain_estimation.tools.estimate import estimate_bag, topic_name
 from terrain_estimation.vehicles import estimator_parameters, get_vehicle
 
@@ -271,21 +272,19 @@ def _read(bag: str | Path, namespace: str, two_dof: bool, wheel_radius: float) -
         names["wheel"] = topic_name(namespace, "imu/wheel")
     by_topic = {v: k for k, v in names.items()}
     data: dict[str, list[tuple[float, ...]]] = {k: [] for k in names}
-    from terrain_estimation.sim2real.model import StampOrigin
-
-    _stamp = StampOrigin()  # seconds from the first stamp: epoch stamps lose precision as floats
+    clock = StampOrigin()  # seconds from the first stamp: epoch stamps lose precision as floats
     for item in read_bag(bag, list(by_topic)):
         key = by_topic[item.topic]
         msg = item.msg
         if key in ("body", "wheel"):
-            data[key].append((_stamp(msg), float(msg.linear_acceleration.z)))
+            data[key].append((clock(msg), float(msg.linear_acceleration.z)))
         elif key == "profile":
-            data[key].append((_stamp(msg), float(msg.point.x), float(msg.point.z)))
+            data[key].append((clock(msg), float(msg.point.x), float(msg.point.z)))
         else:
             names_ = list(msg.name)
             if "wheel" not in names_ or len(msg.velocity) <= names_.index("wheel"):
                 continue
-            data[key].append((_stamp(msg), float(msg.velocity[names_.index("wheel")]) * wheel_radius))
+            data[key].append((clock(msg), float(msg.velocity[names_.index("wheel")]) * wheel_radius))
     for key, topic in names.items():
         if len(data[key]) < 2:
             what = "has no messages on" if not data[key] else "has a single message on"
