@@ -47,6 +47,9 @@ vehicle's config, nothing else) and answers three questions:
    thirds of the bag (interleaved 1 s blocks) and scored on the held-out third
    (χ² + p ln n, p the parameters it adds); when the best single effect does
    not bring the residual to the noise, pairs are tried (forward selection).
+   An effect counts when its held-out χ² improvement is significant at 0.99 by
+   a paired one-sided test (the difference's variance from the residuals'
+   Newey–West long-run variance, never below the noise budget's) and at least 2 %.
 3. **How far the gap shrinks**: gap = mean normalised residual power above the
    noise, shrinkage = 1 − gap(with effect) / gap(nominal) on the held-out part,
    with a block-bootstrap interval.

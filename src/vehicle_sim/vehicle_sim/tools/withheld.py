@@ -30,7 +30,7 @@ them.
 Output layout::
 
     DIR/manifest.json      what the diagnosis is given: id → vehicle, bag path
-    DIR/labels.json        the answers: NEVER to be read by the diagnosis
+    DIR/labels.json        the answers (and each bag's effect signature): NEVER to be read by the diagnosis
     DIR/bags/<id>/         one rosbag2 (MCAP) bag per id
 
 Bag ids are 12 random hex digits (drawn from the seeded generator), so they
@@ -76,23 +76,80 @@ messages, no plant change; sample time t from the start of the run)
     point.z), skid steer the yaw gyro (angular_velocity.z), rover the
     velocimeter (twist.linear.x).
 
+Effect signature (``labels.json`` only: never in the manifest or the bags)
+    How much the withheld effect changed what the bag records, so that the
+    scorer can tell "the diagnosis failed" from "there was nothing to see".
+    Every bag of kind ``effect`` or ``out_of_catalogue`` has a *twin*
+    (:func:`twin`): the identical plan (scenario, noise seed, duration) with
+    every effect off. The plants draw their sensor noise from per-channel
+    streams spawned from the seed, a fixed number of draws per sample
+    whatever the effects, and the drive controllers read the true state, so
+    bag and twin share the noise realisation and Δ = y_effect − y_twin
+    isolates the effect (a control and its separately simulated twin give
+    Δ ≡ 0 bit for bit: test_withheld_signature.py). A catalogue effect's twin
+    is simulated again (nothing written); an out-of-catalogue effect only
+    changes messages after the adapter, so its twin is the same run recorded
+    before the transform. Channels (generic over the message types, not
+    listed per vehicle): every numeric field of the recorded sensor
+    messages, scalar or array element (JointState elements named by joint),
+    without header, strings and ``*covariance`` metadata; a quaternion field
+    gives the three components of the rotation vector of q_twin⁻¹ ⊗ q_effect
+    (no ±π wrap). Samples are aligned on their stamps. The noise σ of each
+    channel is estimated once per vehicle (:func:`noise_sigma`, cached) from
+    two nominal runs of the vehicle's default scenario, :data:`SIGMA_DURATION`
+    s long, that differ only in the noise seed (:data:`SIGMA_SEEDS`):
+    σ = RMS(y₁ − y₂)/√2. Channels with σ = 0 are noise-free or not measured
+    (unmeasured IMU axes, the quarter car's wheel speed and profile
+    position, the rover's wheel torque). The signature (:func:`signature`):
+
+    * ``snr`` = sqrt(Σ_channels Σ_samples (Δ/σ)²) over the noisy channels of
+      the vehicle's *response* topics (:data:`RESPONSE_TOPICS`: IMUs, load
+      cells, velocimeter): the SNR of the ideal matched-filter detector,
+      which knows the effect's shape and magnitude, in white sensor noise
+      (below about 3 there was nothing to see). The inputs a replay is
+      driven by (road profile, drive commands and encoders) and the GNSS
+      fix are left out: an ideal detector would need the twin's exact
+      trajectory to use them (the rover's wheel encoders, σ ≈ 4e-7 rad, gave
+      SNRs of 10⁵–10⁷ to every rover effect; the skid steer's quantised
+      motor encoders, whose quantisation is the same in both σ runs, turn a
+      tiny change of the true motor angle into Δ ≈ step/period). It is an
+      upper bound for a blind diagnosis, which knows neither the effect nor
+      the scenario's nuisances (soil, road, initial state): an effect that a
+      nuisance absorbs (a nonlinear soil about its static point against a
+      fitted k_s) keeps its SNR here. ``snr_all`` is the same over every
+      noisy channel;
+    * ``channels``: per noisy channel ``rms_over_sigma`` = RMS(Δ)/σ, its
+      own ``snr`` (its share) and ``in_snr``; ``most_affected``: the response
+      channel with the largest share (None when none changed); ``samples``:
+      the samples compared;
+    * ``noise_free_changed``: max |Δ| of the noise-free channels that
+      changed (not in the SNR: no noise to measure them against).
+
+    ``labels.json`` also holds the definition and the σ per channel and
+    vehicle (key ``signature``). It costs one more simulation (no bag
+    writing) per catalogue-effect bag and two σ runs per vehicle;
+    ``--no-signature`` skips it.
+
 Reproducible from ``--seed``: each vehicle has its own generator seeded from
 (seed, vehicle), so a subset of vehicles gives the same bags for those
-vehicles. Progress goes to stderr; ``--jobs`` simulates bags in parallel
-processes (same output).
+vehicles. Progress goes to stderr (with each bag's signature SNR and most
+affected channel); ``--jobs`` simulates bags in parallel processes (same
+output).
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import json
 import math
+import operator
 import os
 import shutil
 import sys
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -108,14 +165,23 @@ from vehicle_sim.effects import CATALOGUE, EffectParameter, effects_for
 from vehicle_sim.ros.registry import get_simulator, simulator_parameters
 
 __all__ = [
+    "RESPONSE_TOPICS",
     "DURATIONS",
     "OUT_OF_CATALOGUE",
+    "SIGMA_DURATION",
+    "SIGMA_SEEDS",
     "VEHICLES",
     "BagPlan",
+    "channel_differences",
     "draw_parameter",
+    "effect_deltas",
     "generate",
     "main",
+    "noise_sigma",
     "plan_suite",
+    "record",
+    "signature",
+    "twin",
     "write_bag",
 ]
 
@@ -158,6 +224,14 @@ _ROVER_FRONT_WHEEL_X = 0.35
 _NOTE_LABELS = (
     "Ground-truth labels of the withheld-effect suite: for the scorer only. "
     "The sim-to-real diagnosis must NEVER read this file; it is given manifest.json and the bags."
+)
+_NOTE_SIGNATURE = (
+    "signature (per effect / out-of-catalogue label): the bag minus its twin (same plan, effects off, same noise), "
+    "per noisy sensor channel Delta = y_effect - y_twin; snr = sqrt(sum over channels and samples of "
+    "(Delta/sigma)^2), the matched-filter SNR of an ideal detector in white sensor noise; sigma per channel "
+    "= RMS(y1 - y2)/sqrt(2) of two nominal runs differing only in the noise seed (noise_sigma below); "
+    "over the vehicle's response topics (response_topics below; snr_all: every noisy channel). "
+    "Noise-free channels (sigma = 0) are left out of the SNR and listed in noise_free_changed when they change."
 )
 _NOTE_MANIFEST = "What the diagnosis is given: bag id -> vehicle and bag path. Labels are withheld."
 
@@ -480,9 +554,8 @@ def _ooc_transform(plan: BagPlan, imu_keys: Sequence[str], rate: float) -> Calla
     raise ValueError(f"unknown out-of-catalogue effect {name!r}")
 
 
-def write_bag(plan: BagPlan, out: str | Path) -> dict[str, Any]:
-    """Simulate ``plan`` and write its bag to ``out/plan.path``; return timing and message counts."""
-    started = time.monotonic()
+def _open(plan: BagPlan) -> tuple[Any, dict[str, tuple[str, str]], list[str]]:
+    """The plan's adapter (effects installed), its kept sensor topics (key → (bag topic, topic)) and IMU keys."""
     entry = get_simulator(plan.vehicle)
     overrides: dict[str, Any] = {**plan.scenario, "seed": plan.seed}
     if plan.vehicle in ("skid_steer", "rover"):
@@ -491,32 +564,364 @@ def write_bag(plan: BagPlan, out: str | Path) -> dict[str, Any]:
     adapter = entry.make_adapter(values, entry.namespace)
     _install_effects(adapter, plan.vehicle, plan)
     keep = {
-        spec.key: topic_name(entry.namespace, spec.topic)
+        spec.key: (topic_name(entry.namespace, spec.topic), spec.topic)
         for spec in adapter.outputs
         if spec.kind == "sensor" and not spec.topic.startswith("ground_truth")
     }
     imu_keys = [spec.key for spec in adapter.outputs if spec.key in keep and spec.topic.startswith("imu")]
+    return adapter, keep, imu_keys
+
+
+def _messages(adapter: Any, keep: Mapping[str, tuple[str, str]], duration: float) -> Iterator[tuple[str, Any, int]]:
+    """(key, message, stamp in ns from the run's start) of every kept sensor message of a run of ``duration``."""
+    t = 0.0
+    while t < duration - 1e-9:
+        t, messages = adapter.step()
+        for key, msg in messages:
+            if key in keep:
+                yield key, msg, stamp_to_ns(msg.header.stamp)
+
+
+# ---------------------------------------------------------------------------
+# Effect signature (labels only: the diagnosis never sees it)
+# ---------------------------------------------------------------------------
+
+#: Noise σ of a vehicle's channels: from two nominal runs of this length (s) with these noise seeds.
+SIGMA_DURATION = 10.0
+SIGMA_SEEDS = (1, 2)
+_NUMERIC_TYPES = frozenset(
+    {"double", "float", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64"}
+)
+_QUATERNION_TYPE = "geometry_msgs/Quaternion"
+
+
+@dataclass(frozen=True)
+class _Field:
+    path: str
+    kind: str  # "scalar" | "array" | "quaternion"
+    get: Callable[[Any], Any]
+
+
+_LAYOUTS: dict[type, tuple[_Field, ...]] = {}
+
+
+def _layout(msg_type: type) -> tuple[_Field, ...]:
+    """The numeric leaves of a message type: scalars, numeric arrays/sequences and quaternions.
+
+    Generic over rosidl message types: left out are the header, strings,
+    booleans, ``*covariance`` arrays (metadata, not readings) and arrays of
+    messages.
+    """
+    fields: list[_Field] = []
+
+    def walk(cls: type, prefix: str) -> None:
+        instance = cls()
+        for name, typ in cls.get_fields_and_field_types().items():  # type: ignore[attr-defined]
+            path = f"{prefix}{name}"
+            if name == "header" or name.endswith("covariance"):
+                continue
+            is_array = typ.startswith("sequence<") or typ.endswith("]")
+            base = typ[len("sequence<") :].split(",")[0].rstrip(">") if typ.startswith("sequence<") else typ
+            base = base.split("[")[0].strip()
+            if base in _NUMERIC_TYPES:
+                fields.append(_Field(path, "array" if is_array else "scalar", operator.attrgetter(path)))
+            elif "/" in base and not is_array:
+                if base == _QUATERNION_TYPE:
+                    fields.append(_Field(path, "quaternion", operator.attrgetter(path)))
+                else:
+                    walk(type(getattr(instance, name)), f"{path}.")
+
+    cached = _LAYOUTS.get(msg_type)
+    if cached is None:
+        walk(msg_type, "")
+        cached = _LAYOUTS[msg_type] = tuple(fields)
+    return cached
+
+
+Series = tuple[np.ndarray, list[str], np.ndarray, list[str], np.ndarray]
+"""One topic of a recorded run: stamps (ns), channel names, values (N, C), quaternion names, quaternions (N, Q, 4)."""
+
+
+class _Recorder:
+    """Collects the numeric channels of a run's sensor messages, per topic."""
+
+    def __init__(self) -> None:
+        self._stamps: dict[str, list[int]] = {}
+        self._names: dict[str, tuple[list[str], list[str]]] = {}
+        self._rows: dict[str, list[list[float]]] = {}
+        self._quats: dict[str, list[list[float]]] = {}
+
+    def add(self, topic: str, stamp_ns: int, msg: Any) -> None:
+        layout = _layout(type(msg))
+        row: list[float] = []
+        quat: list[float] = []
+        if topic not in self._names:
+            names: list[str] = []
+            quat_names: list[str] = []
+            labels = list(getattr(msg, "name", [])) if hasattr(msg, "name") else []
+            for f in layout:
+                if f.kind == "scalar":
+                    names.append(f"{topic} {f.path}")
+                elif f.kind == "array":
+                    n = len(f.get(msg))
+                    tags = labels if len(labels) == n and all(isinstance(x, str) for x in labels) else range(n)
+                    names += [f"{topic} {f.path}[{tag}]" for tag in tags]
+                else:
+                    quat_names.append(f"{topic} {f.path}")
+            self._names[topic] = (names, quat_names)
+            self._stamps[topic], self._rows[topic], self._quats[topic] = [], [], []
+        for f in layout:
+            value = f.get(msg)
+            if f.kind == "scalar":
+                row.append(float(value))
+            elif f.kind == "array":
+                row.extend(float(v) for v in value)
+            else:
+                quat += (float(value.x), float(value.y), float(value.z), float(value.w))
+        if len(row) != len(self._names[topic][0]):
+            raise ValueError(f"{topic}: the message layout changed during the run ({len(row)} values)")
+        self._stamps[topic].append(stamp_ns)
+        self._rows[topic].append(row)
+        self._quats[topic].append(quat)
+
+    def series(self) -> dict[str, Series]:
+        """topic → (stamps, scalar channel names, values (N, C), quaternion names, quaternions (N, Q, 4))."""
+        out: dict[str, Series] = {}
+        for topic, stamps in self._stamps.items():
+            names, quat_names = self._names[topic]
+            n = len(stamps)
+            values = np.asarray(self._rows[topic], dtype=float).reshape(n, len(names))
+            quats = np.asarray(self._quats[topic], dtype=float).reshape(n, len(quat_names), 4)
+            out[topic] = (np.asarray(stamps, dtype=np.int64), names, values, quat_names, quats)
+        return out
+
+
+def _rotation_vector(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
+    """Rotation vector (rad) of qb⁻¹ ⊗ qa, (..., 4) (x, y, z, w) → (..., 3): the wrap-free orientation difference."""
+    av, aw, bv, bw = qa[..., :3], qa[..., 3:], qb[..., :3], qb[..., 3:]
+    w = aw * bw + np.sum(av * bv, axis=-1, keepdims=True)
+    v = bw * av - aw * bv - np.cross(bv, av)
+    sign = np.where(w < 0.0, -1.0, 1.0)
+    w, v = w * sign, v * sign
+    norm = np.linalg.norm(v, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(norm, w)
+    factor = np.divide(angle, norm, out=np.full_like(norm, 2.0), where=norm > 1e-12)
+    return v * factor
+
+
+def channel_differences(
+    a: Mapping[str, Series],
+    b: Mapping[str, Series],
+) -> dict[str, np.ndarray]:
+    """Per channel, the sample-by-sample difference a − b of two recorded runs (aligned on the stamps).
+
+    A quaternion field gives three channels ``<field>.r{x,y,z}``: the rotation
+    vector of b⁻¹ ⊗ a (no wrap at ±π, no q ≡ −q jump).
+    """
+    if set(a) != set(b):
+        raise ValueError(f"the runs record different topics: {sorted(set(a) ^ set(b))}")
+    out: dict[str, np.ndarray] = {}
+    for topic in sorted(a):
+        sa, names, va, qnames, qa = a[topic]
+        sb, names_b, vb, qnames_b, qb = b[topic]
+        if names != names_b or qnames != qnames_b:
+            raise ValueError(f"{topic}: the runs record different channels")
+        if not np.array_equal(sa, sb):
+            _, ia, ib = np.intersect1d(sa, sb, assume_unique=True, return_indices=True)
+            va, vb, qa, qb = va[ia], vb[ib], qa[ia], qb[ib]
+        for j, name in enumerate(names):
+            out[name] = va[:, j] - vb[:, j]
+        for j, name in enumerate(qnames):
+            rv = _rotation_vector(qa[:, j], qb[:, j])
+            for k, axis in enumerate("xyz"):
+                out[f"{name}.r{axis}"] = rv[:, k]
+    return out
+
+
+def record(plan: BagPlan) -> dict[str, Series]:
+    """Simulate ``plan`` (plant only: no out-of-catalogue transform, nothing written) and record its channels."""
+    adapter, keep, _ = _open(plan)
+    recorder = _Recorder()
+    for key, msg, stamp in _messages(adapter, keep, plan.duration):
+        recorder.add(keep[key][1], stamp, msg)
+    return recorder.series()
+
+
+def twin(plan: BagPlan) -> BagPlan:
+    """The plan with every effect off: same scenario, noise seed, duration and start time."""
+    return replace(plan, effect=None, parameters={}, draw={}, out_of_catalogue=None, ooc_parameters={})
+
+
+def _nominal_plan(vehicle: str, seed: int, duration: float) -> BagPlan:
+    return BagPlan(
+        id=f"sigma-{seed}",
+        vehicle=vehicle,
+        kind="control",
+        effect=None,
+        parameters={},
+        draw={},
+        out_of_catalogue=None,
+        ooc_parameters={},
+        scenario={},
+        seed=seed,
+        duration=duration,
+        start_time_ns=0,
+    )
+
+
+@functools.cache
+def _noise_sigma(vehicle: str, duration: float, seeds: tuple[int, int]) -> tuple[tuple[str, float], ...]:
+    a, b = (record(_nominal_plan(vehicle, seed, duration)) for seed in seeds)
+    return tuple(
+        (name, float(np.sqrt(np.mean(d * d)) / math.sqrt(2.0)) if d.size else 0.0)
+        for name, d in channel_differences(a, b).items()
+    )
+
+
+def noise_sigma(
+    vehicle: str, duration: float = SIGMA_DURATION, seeds: tuple[int, int] = SIGMA_SEEDS
+) -> dict[str, float]:
+    """Sensor-noise σ per channel of ``vehicle``: RMS(y₁ − y₂)/√2 of two nominal runs differing only in the noise seed.
+
+    The vehicle's default scenario, every catalogue effect off. A channel with
+    σ = 0 is noise-free (the two runs agree bit for bit). Cached per process.
+    """
+    return dict(_noise_sigma(vehicle, float(duration), (int(seeds[0]), int(seeds[1]))))
+
+
+def _g4(x: float) -> float:
+    return float(f"{x:.4g}")
+
+
+#: Per vehicle, the topics whose channels count in the signature's ``snr``: the vehicle's
+#: *responses*. Left out are the inputs every replay of the vehicle is driven by (the
+#: measured road profile; the drive's commands and encoders in joint_states) and the GNSS
+#: fix (an integral of the motion: its drift from an unknown start is no evidence a blind
+#: diagnosis can use). Their channels are still listed, with ``in_snr`` false.
+RESPONSE_TOPICS: Mapping[str, tuple[str, ...]] = {
+    "quarter_car": ("imu/body", "imu/wheel"),
+    "lrv": ("imu/body",),
+    "skid_steer": ("imu",),
+    "rover": ("imu", "velocimeter", "wheel/front/load", "wheel/middle/load", "wheel/rear/load"),
+}
+
+
+def _topic_of(channel: str) -> str:
+    return channel.split(" ", 1)[0]
+
+
+def signature(
+    deltas: Mapping[str, np.ndarray], sigma: Mapping[str, float], response: Sequence[str] | None = None
+) -> dict[str, Any]:
+    """The effect signature of the differences ``deltas`` (effect − twin) given the noise σ per channel.
+
+    Returns ``snr`` = sqrt(Σ_channels Σ_samples (Δ/σ)²) over the noisy
+    channels (σ > 0) of the ``response`` topics (default: every topic; see
+    :data:`RESPONSE_TOPICS`), ``snr_all`` over every noisy channel, per noisy
+    channel ``rms_over_sigma`` = RMS(Δ)/σ, its own ``snr`` (its share) and
+    ``in_snr``, ``most_affected`` (the response channel of the largest share;
+    None when none changed), ``samples`` compared, and ``noise_free_changed``:
+    max |Δ| of the noise-free channels (σ = 0) that changed, which are left
+    out of the SNR (no noise scale to measure them against).
+    """
+    total = 0.0
+    total_all = 0.0
+    samples = 0
+    channels: dict[str, dict[str, float]] = {}
+    noise_free: dict[str, float] = {}
+    for name, d in deltas.items():
+        s = sigma.get(name)
+        if s is None:
+            raise ValueError(f"no noise sigma for channel {name!r}")
+        if not s > 0.0:
+            if d.size and np.any(d != 0.0):
+                noise_free[name] = _g4(float(np.max(np.abs(d))))
+            continue
+        z2 = float(np.sum((d / s) ** 2))
+        counted = response is None or _topic_of(name) in response
+        total_all += z2
+        if counted:
+            total += z2
+            samples += d.size
+        channels[name] = {
+            "rms_over_sigma": _g4(math.sqrt(z2 / d.size)) if d.size else 0.0,
+            "snr": _g4(math.sqrt(z2)),
+            "in_snr": counted,
+        }
+    counted_names = [c for c in channels if channels[c]["in_snr"]]
+    most = max(counted_names, key=lambda c: channels[c]["snr"]) if total > 0.0 else None
+    return {
+        "snr": _g4(math.sqrt(total)),
+        "snr_all": _g4(math.sqrt(total_all)),
+        "most_affected": most,
+        "samples": samples,
+        "channels": channels,
+        "noise_free_changed": noise_free,
+    }
+
+
+def effect_deltas(plan: BagPlan, *, simulate_twin: bool = False) -> dict[str, np.ndarray]:
+    """Δ = y_effect − y_twin per channel of ``plan`` (no bag written).
+
+    The twin is simulated separately when the plan has a plant effect (or
+    ``simulate_twin``); otherwise it is the same run before the
+    out-of-catalogue transform, which is what :func:`write_bag` does.
+    """
+    adapter, keep, imu_keys = _open(plan)
     transform = _ooc_transform(plan, imu_keys, 1.0 / float(adapter.period))
+    effect, same_run = _Recorder(), _Recorder()
+    for key, msg, stamp in _messages(adapter, keep, plan.duration):
+        same_run.add(keep[key][1], stamp, msg)
+        transform(key, msg, stamp * 1e-9)
+        effect.add(keep[key][1], stamp, msg)
+    reference = record(twin(plan)) if plan.effect is not None or simulate_twin else same_run.series()
+    return channel_differences(effect.series(), reference)
+
+
+def write_bag(plan: BagPlan, out: str | Path, sigma: Mapping[str, float] | None = None) -> dict[str, Any]:
+    """Simulate ``plan`` and write its bag to ``out/plan.path``; return timing and message counts.
+
+    With ``sigma`` (:func:`noise_sigma` of the vehicle), a bag of kind
+    ``effect`` or ``out_of_catalogue`` also gets its effect ``signature``
+    (:func:`signature`) against its twin (:func:`twin`): simulated
+    separately when the plan has a plant effect, else recorded from the same
+    run before the out-of-catalogue transform (which changes messages only).
+    """
+    started = time.monotonic()
+    adapter, keep, imu_keys = _open(plan)
+    transform = _ooc_transform(plan, imu_keys, 1.0 / float(adapter.period))
+    measure = sigma is not None and plan.kind != "control"
+    effect = _Recorder() if measure else None
+    same_run = _Recorder() if measure and plan.effect is None else None
     offset = plan.start_time_ns
     with AtomicBagWriter(Path(out) / plan.path) as writer:
-        t = 0.0
-        while t < plan.duration - 1e-9:
-            t, messages = adapter.step()
-            for key, msg in messages:
-                if key not in keep:
-                    continue
-                stamp = stamp_to_ns(msg.header.stamp)
-                transform(key, msg, stamp * 1e-9)
-                stamp += offset
-                msg.header.stamp = ns_to_stamp(stamp)
-                writer.write(keep[key], msg, stamp)
+        for key, msg, stamp in _messages(adapter, keep, plan.duration):
+            topic, short = keep[key]
+            if same_run is not None:
+                same_run.add(short, stamp, msg)
+            transform(key, msg, stamp * 1e-9)
+            if effect is not None:
+                effect.add(short, stamp, msg)
+            msg.header.stamp = ns_to_stamp(stamp + offset)
+            writer.write(topic, msg, stamp + offset)
         count = writer.count
-    return {"id": plan.id, "messages": count, "seconds": time.monotonic() - started}
+    result: dict[str, Any] = {"id": plan.id, "messages": count}
+    if effect is not None and sigma is not None:
+        reference = same_run.series() if same_run is not None else record(twin(plan))
+        deltas = channel_differences(effect.series(), reference)
+        result["signature"] = signature(deltas, sigma, RESPONSE_TOPICS.get(plan.vehicle))
+    result["seconds"] = time.monotonic() - started
+    return result
 
 
-def _write_job(args: tuple[BagPlan, str]) -> dict[str, Any]:
+def _write_job(args: tuple[BagPlan, str, Mapping[str, float] | None]) -> dict[str, Any]:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     return write_bag(*args)
+
+
+def _sigma_job(vehicle: str) -> dict[str, float]:
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    return noise_sigma(vehicle)
 
 
 def _write_json(path: Path, data: Any) -> None:
@@ -531,10 +936,15 @@ def generate(
     *,
     jobs: int = 1,
     progress: bool = True,
+    signatures: bool = True,
 ) -> dict[str, Any]:
     """Write the bags of ``plans``, ``manifest.json`` and ``labels.json`` under ``out``.
 
-    Existing ``out/bags`` is replaced. Returns a summary (bag count, seconds).
+    With ``signatures`` (default), every ``effect`` and ``out_of_catalogue``
+    label gets the bag's effect ``signature`` (module docstring), and
+    ``labels.json`` the noise σ per channel of each vehicle
+    (``noise_sigma``). Existing ``out/bags`` is replaced. Returns a summary
+    (bag count, seconds).
     """
     root = Path(out)
     root.mkdir(parents=True, exist_ok=True)
@@ -545,29 +955,63 @@ def generate(
         (root / name).unlink(missing_ok=True)
     started = time.monotonic()
     total = len(plans)
+    vehicles = list(dict.fromkeys(p.vehicle for p in plans if p.kind != "control")) if signatures else []
+    results: dict[str, dict[str, Any]] = {}
 
     def report(i: int, plan: BagPlan, result: dict[str, Any]) -> None:
+        results[plan.id] = result
         if progress:
+            sig = result.get("signature")
+            seen = f"; signature SNR {sig['snr']:.3g} ({sig['most_affected'] or 'no change'})" if sig else ""
             print(
                 f"[{i}/{total}] {plan.vehicle} {plan.id}: {plan.duration:g} s simulated, "
-                f"{result['messages']} messages in {result['seconds']:.1f} s",
+                f"{result['messages']} messages in {result['seconds']:.1f} s{seen}",
                 file=sys.stderr,
             )
 
+    def report_sigma(vehicle: str, sigma: Mapping[str, float], seconds: float) -> None:
+        if progress:
+            noisy = sum(s > 0.0 for s in sigma.values())
+            print(
+                f"noise sigma of {vehicle}: {noisy} noisy of {len(sigma)} channels "
+                f"(2 x {SIGMA_DURATION:g} s nominal runs) in {seconds:.1f} s",
+                file=sys.stderr,
+            )
+
+    sigmas: dict[str, dict[str, float]] = {}
     if jobs <= 1:
+        for vehicle in vehicles:
+            t0 = time.monotonic()
+            sigmas[vehicle] = noise_sigma(vehicle)
+            report_sigma(vehicle, sigmas[vehicle], time.monotonic() - t0)
         for i, plan in enumerate(plans, 1):
-            report(i, plan, write_bag(plan, root))
+            report(i, plan, write_bag(plan, root, sigmas.get(plan.vehicle)))
     else:
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            for i, (plan, result) in enumerate(
-                zip(plans, pool.map(_write_job, [(p, str(root)) for p in plans]), strict=True), 1
-            ):
+            t0 = time.monotonic()
+            for vehicle, sigma in zip(vehicles, pool.map(_sigma_job, vehicles), strict=True):
+                sigmas[vehicle] = sigma
+                report_sigma(vehicle, sigma, time.monotonic() - t0)
+            work = [(p, str(root), sigmas.get(p.vehicle)) for p in plans]
+            for i, (plan, result) in enumerate(zip(plans, pool.map(_write_job, work), strict=True), 1):
                 report(i, plan, result)
     manifest = {
         "note": _NOTE_MANIFEST,
         "bags": [{"id": p.id, "vehicle": p.vehicle, "bag": p.path} for p in sorted(plans, key=lambda p: p.id)],
     }
-    labels = {"note": _NOTE_LABELS, "labels": {p.id: p.label() for p in sorted(plans, key=lambda p: p.id)}}
+    labels: dict[str, Any] = {"note": _NOTE_LABELS, "labels": {}}
+    for p in sorted(plans, key=lambda p: p.id):
+        label = p.label()
+        if "signature" in results[p.id]:
+            label["signature"] = results[p.id]["signature"]
+        labels["labels"][p.id] = label
+    if sigmas:
+        labels["signature"] = {
+            "definition": _NOTE_SIGNATURE,
+            "sigma_runs": {"duration": SIGMA_DURATION, "seeds": list(SIGMA_SEEDS)},
+            "noise_sigma": {v: {c: _g4(s) for c, s in sigma.items()} for v, sigma in sigmas.items()},
+            "response_topics": {v: list(RESPONSE_TOPICS.get(v, ())) for v in sigmas},
+        }
     _write_json(root / "manifest.json", manifest)
     _write_json(root / "labels.json", labels)
     return {"bags": total, "seconds": time.monotonic() - started}
@@ -592,6 +1036,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--effect", action="append", help="only these catalogue effects (default: all)")
     parser.add_argument("--jobs", type=int, default=1, help="parallel simulation processes (default 1)")
+    parser.add_argument(
+        "--no-signature",
+        action="store_true",
+        help="skip the effect signatures in labels.json (no twin simulations: about half the time)",
+    )
     args = parser.parse_args(argv)
     vehicles = tuple(dict.fromkeys(args.vehicle)) if args.vehicle else VEHICLES
     try:
@@ -607,7 +1056,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not plans:
             raise ValueError("nothing to generate (all counts are 0)")
         print(f"withheld: generating {len(plans)} bags for {', '.join(vehicles)} in {args.out}", file=sys.stderr)
-        summary = generate(args.out, plans, jobs=max(1, args.jobs))
+        summary = generate(args.out, plans, jobs=max(1, args.jobs), signatures=not args.no_signature)
     except (BagError, ParameterError, ValueError, OSError) as exc:
         print(f"withheld: error: {exc}", file=sys.stderr)
         return 2
