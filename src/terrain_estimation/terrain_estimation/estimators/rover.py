@@ -86,6 +86,20 @@ arithmetic fails or leaves a non-finite state is skipped
 (``counters.failed_steps``) and the filters keep their previous posterior;
 after ``max_consecutive_failures`` in a row they re-initialise at the next
 usable window.
+
+**Divergence (issue 7).** With ``config.divergence`` set, each filter has a
+:class:`~terrain_estimation.filters.faults.DivergenceMonitor`: a filter that
+stays finite but diverges (its windowed mean NIS outside its χ² band, a
+variance above ``max_variance_growth`` times its initial one, a gate
+lock-out), or a step that fails or leaves a non-finite state, re-initialises
+from its *last good* estimate (the newest one whose NIS window was inside its
+band) with its initial covariance, and the step's estimate is flagged
+``initialised`` (``counters.divergences``; :attr:`RoverTerrainEstimator.fault`
+holds the reason until the filter is consistent again). Estimator 2/3 runs on
+Estimator 1's posterior, so it restarts from its own last good estimate too
+when Estimator 1 diverges (without a fault of its own). A failed step still
+counts in ``failed_steps``, and ``max_consecutive_failures`` of them in a row
+re-initialise from the measurements as without the monitor.
 """
 
 from __future__ import annotations
@@ -98,7 +112,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from terrain_estimation.filters.base import Array, GaussianState
+from terrain_estimation.filters.base import Array, GaussianState, UpdateInfo
+from terrain_estimation.filters.faults import DivergenceCheck, DivergenceConfig, DivergenceMonitor
 from terrain_estimation.filters.ukf import UnscentedKalmanFilter
 from terrain_estimation.models.rover import WHEELS, RoverParams, carrier_angles
 from terrain_estimation.models.rover_estimators import (
@@ -226,6 +241,10 @@ class RoverEstimatorConfig:
         ukf_alpha, ukf_beta, ukf_kappa: sigma-point parameters (α = 1, κ = 0:
             positive weights for any n).
         gate_threshold: NIS gate of both filters; None disables.
+        divergence: divergence detection and recovery of both filters
+            (:class:`~terrain_estimation.filters.faults.DivergenceConfig`, one
+            monitor per filter, module docstring); None (default) keeps only
+            the handling of failed steps.
     """
 
     rover: RoverParams = field(default_factory=RoverParams)
@@ -257,8 +276,11 @@ class RoverEstimatorConfig:
     ukf_beta: float = 2.0
     ukf_kappa: float = 0.0
     gate_threshold: float | None = None
+    divergence: DivergenceConfig | None = None
 
     def __post_init__(self) -> None:
+        if self.divergence is not None and not isinstance(self.divergence, DivergenceConfig):
+            raise ValueError(f"divergence must be None or a DivergenceConfig, got {type(self.divergence).__name__}")
         if self.load_cell_axes not in (1, 2) or isinstance(self.load_cell_axes, bool):
             raise ValueError(f"load_cell_axes must be 1 or 2, got {self.load_cell_axes!r}")
         for name in ("sensor_rate_hz", "estimator_rate_hz", "max_latency_s", "max_gap_s"):
@@ -407,7 +429,8 @@ class RoverEstimate:
             first estimate, ∫ ẋ0^R dt (m); the terrain-response accumulator
             estimates curvature from γ against it.
         estimator: 2 or 3 (which wheel-force estimator ran).
-        initialised: this estimate comes from a (re)initialisation.
+        initialised: this estimate comes from a (re)initialisation (or, with
+            ``config.divergence``, a recovery from the last good estimate).
         general_nis, wheel_force_nis: NIS of the two updates (0 at initialisation).
         accepted: both updates passed the gate.
     """
@@ -446,6 +469,7 @@ class RoverCounters:
     initialisations: int = 0
     restarts: int = 0
     failed_steps: int = 0
+    divergences: int = 0
     gated_general: int = 0
     gated_wheel_force: int = 0
 
@@ -500,6 +524,10 @@ class _Window:
     cell_n: Array = field(default_factory=lambda: np.zeros(3, dtype=int))
     axial_sum: Array = field(default_factory=lambda: np.zeros(3))
     perpendicular_sum: Array = field(default_factory=lambda: np.zeros(3))
+
+
+def _finite_state(state: GaussianState) -> bool:
+    return bool(np.isfinite(state.x).all() and np.isfinite(state.P).all())
 
 
 def _angle_difference(a: Array | float, b: Array | float) -> Array:
@@ -562,11 +590,26 @@ class RoverTerrainEstimator:
         self._last: RoverEstimate | None = None
         self._outbox: list[RoverEstimate] = []
         self._c: dict[str, int] = dict.fromkeys(RoverCounters.__dataclass_fields__, 0)
+        div = self.config.divergence
+        # Estimator 1 and Estimator 2/3.
+        self._monitors = (DivergenceMonitor(div), DivergenceMonitor(div)) if div is not None else None
 
     @property
     def counters(self) -> RoverCounters:
         """Snapshot of the health counters."""
         return RoverCounters(**self._c)
+
+    @property
+    def fault(self) -> str | None:
+        """Why a filter was last found diverged, until it is consistent again; None when healthy.
+
+        Names the filter (``"Estimator 1: ..."``). Always None without ``config.divergence``.
+        """
+        if self._monitors is None:
+            return None
+        numbers = (1, self.config.estimator_number)
+        faults = [f"Estimator {n}: {m.fault}" for n, m in zip(numbers, self._monitors, strict=True) if m.fault]
+        return "; ".join(faults) if faults else None
 
     @property
     def last_estimate(self) -> RoverEstimate | None:
@@ -779,25 +822,96 @@ class RoverTerrainEstimator:
             return
         assert self._t_step is not None
         dt = t - self._t_step
+        failure: str | None = None
         try:
-            result = self._filter_step(dt, m)
-        except (ValueError, np.linalg.LinAlgError, FloatingPointError):
-            result = None
-        if result is None:
+            post1, info1, post2, info2, vertical = self._filter_step(dt, m)
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
+            failure = f"filter step failed: {exc}"
+        if self._monitors is not None:
+            self._supervised(t, dt, failure, *((None,) * 5 if failure else (post1, info1, post2, info2, vertical)))
+            return
+        if failure is not None or post2 is None or not _finite_state(post2):
             self._c["failed_steps"] += 1
             self._failures += 1
             if self._failures >= cfg.max_consecutive_failures:
                 self._general = self._wheel_force = None
             return
-        post1, post2, nis1, nis2, ok1, ok2 = result
+        assert info2 is not None
+        self._advance(t, dt, post1, post2, info1, info2, vertical)
+
+    def _advance(
+        self,
+        t: float,
+        dt: float,
+        post1: GaussianState,
+        post2: GaussianState,
+        info1: UpdateInfo,
+        info2: UpdateInfo,
+        vertical: tuple[float, float],
+    ) -> None:
+        """Keep a step's (finite) posteriors: counters, distance, state, time, and emit the estimate."""
+        assert self._general is not None
         self._failures = 0
         self._c["steps"] += 1
-        self._c["gated_general"] += int(not ok1)
-        self._c["gated_wheel_force"] += int(not ok2)
+        self._c["gated_general"] += int(not info1.accepted)
+        self._c["gated_wheel_force"] += int(not info2.accepted)
         self._distance += dt * 0.5 * (float(self._general.x[_G.FORWARD_SPEED]) + float(post1.x[_G.FORWARD_SPEED]))
         self._general, self._wheel_force = post1, post2
+        self._vertical = vertical
         self._t_step = t
-        self._emit(t, initialised=False, nis=(nis1, nis2), accepted=ok1 and ok2)
+        nis1 = info1.nis if math.isfinite(info1.nis) else 0.0
+        nis2 = info2.nis if math.isfinite(info2.nis) else 0.0
+        self._emit(t, initialised=False, nis=(nis1, nis2), accepted=info1.accepted and info2.accepted)
+
+    def _supervised(
+        self,
+        t: float,
+        dt: float,
+        failure: str | None,
+        post1: GaussianState | None,
+        info1: UpdateInfo | None,
+        post2: GaussianState | None,
+        info2: UpdateInfo | None,
+        vertical: tuple[float, float] | None,
+    ) -> None:
+        """One step under the divergence monitors (module docstring): keep it or re-initialise from the last good.
+
+        ``post2``/``info2`` are None when Estimator 2/3 did not run (a
+        non-finite Estimator 1 posterior); everything is None when the step
+        raised (``failure``).
+        """
+        assert self._monitors is not None and self._general is not None and self._wheel_force is not None
+        mon1, mon2 = self._monitors
+        if failure is not None:
+            self._c["failed_steps"] += 1
+            self._failures += 1
+            if self._failures >= self.config.max_consecutive_failures:
+                # The last good estimates keep failing: re-initialise from the measurements.
+                mon1.fail(failure)
+                self._c["divergences"] += 1
+                self._general = self._wheel_force = None
+                return
+            state1, check1 = mon1.supervise(self.filter, self._general, failure=failure)
+        else:
+            state1, check1 = mon1.supervise(self.filter, post1, info1)
+        if check1.diverged:
+            # Estimator 2/3 ran on a diverged Estimator 1 (or not at all): its own last good estimate.
+            state2, check2 = mon2.recover(self.filter), DivergenceCheck(diverged=False)
+        else:
+            assert post2 is not None and info2 is not None and info1 is not None
+            state2, check2 = mon2.supervise(self.filter, post2, info2)
+        if not (check1.diverged or check2.diverged):
+            assert vertical is not None and info1 is not None and info2 is not None
+            self._advance(t, dt, state1, state2, info1, info2, vertical)
+            return
+        self._c["divergences"] += 1
+        if failure is None:
+            self._failures = 0
+        self._vertical = vertical if not check1.diverged and vertical is not None else (0.0, 0.0)
+        self._distance += dt * 0.5 * (float(self._general.x[_G.FORWARD_SPEED]) + float(state1.x[_G.FORWARD_SPEED]))
+        self._general, self._wheel_force = state1, state2
+        self._t_step = t
+        self._emit(t, initialised=True, nis=(0.0, 0.0), accepted=False)
 
     def _initialise(self, t: float, m: _Means, *, restart: bool) -> None:
         cfg = self.config
@@ -830,6 +944,9 @@ class RoverTerrainEstimator:
             return
         self._general = general
         self._wheel_force = self.filter.initial_state(x2, self._p2)
+        if self._monitors is not None:
+            self._monitors[0].start(self._general)
+            self._monitors[1].start(self._wheel_force)
         self._vertical = (0.0, 0.0)
         self._failures = 0
         self._c["restarts" if restart else "initialisations"] += 1
@@ -838,7 +955,12 @@ class RoverTerrainEstimator:
 
     def _filter_step(
         self, dt: float, m: _Means
-    ) -> tuple[GaussianState, GaussianState, float, float, bool, bool] | None:
+    ) -> tuple[GaussianState, UpdateInfo, GaussianState | None, UpdateInfo | None, tuple[float, float]]:
+        """Estimator 1 then 2/3: ``(post1, info1, post2, info2, vertical speed and variance)``.
+
+        ``post2``, ``info2`` are None when Estimator 1's posterior is not
+        finite (Estimator 2/3 then does not run); ``post2`` is not checked.
+        """
         cfg = self.config
         p = cfg.rover
         assert self._general is not None and self._wheel_force is not None
@@ -885,10 +1007,10 @@ class RoverTerrainEstimator:
         post1, info1 = self.filter.update(
             prior1, y1, self.general_model, None, measurement_noise_sqrt=np.diag(np.sqrt(r1))
         )
+        if not _finite_state(post1):
+            return post1, info1, None, None, (0.0, 0.0)
         x1 = np.asarray(post1.x, dtype=float)
         P1 = np.asarray(post1.P, dtype=float)
-        if not (np.isfinite(x1).all() and np.isfinite(P1).all()):
-            return None
         # Estimator 2/3 (eqs. 75–89) on Estimator 1's posterior.
         eps = carrier_angles(p, configuration(float(x1[_G.PITCH]), float(x1[_G.BOGIE])))
         kin_idx = [_G.PITCH, _G.BOGIE, _G.FORWARD_SPEED, _G.PITCH_RATE, _G.BOGIE_RATE]
@@ -918,12 +1040,7 @@ class RoverTerrainEstimator:
         post2, info2 = self.filter.update(
             prior2, y2, self.wheel_force_model, eps, measurement_noise_sqrt=np.diag(np.sqrt(r2))
         )
-        if not (np.isfinite(post2.x).all() and np.isfinite(post2.P).all()):
-            return None
-        nis1 = info1.nis if math.isfinite(info1.nis) else 0.0
-        nis2 = info2.nis if math.isfinite(info2.nis) else 0.0
-        self._vertical = vertical
-        return post1, post2, nis1, nis2, info1.accepted, info2.accepted
+        return post1, info1, post2, info2, vertical
 
     def _general_measurement(self, m: _Means, *, pitch_rate: float, bogie_rate: float) -> Array:
         return general_measurement(

@@ -1116,16 +1116,14 @@ class SoilStiffnessEstimator:
         """
         monitor = self._monitor
         assert monitor is not None
-        if failed:
-            check = monitor.fail("filter step failed")
-        else:
+        info = None
+        if not failed:
             if np.all(np.isfinite(x)):
                 k_c = self.model.project_stiffness_state(float(x[-1]))
                 if k_c != x[-1]:
                     x = x.copy()
                     x[-1] = k_c
                     post = dataclasses.replace(post, x=x)
-            info = None
             if update_dim:
                 info = UpdateInfo(
                     innovation=np.zeros(update_dim),
@@ -1133,12 +1131,12 @@ class SoilStiffnessEstimator:
                     nis=monitor_nis,
                     accepted=accepted,
                 )
-            check = monitor.observe(post, info)
+        self._state, check = monitor.supervise(
+            self.filter, post, info, failure="filter step failed" if failed else None
+        )
         if not check.diverged:
-            self._state = post
             return x, cov, accepted, nis
         self._c["divergences"] += 1
-        self._state = monitor.recover(self.filter)
         return (
             np.asarray(self._state.x, dtype=float),
             np.asarray(self._state.covariance, dtype=float),

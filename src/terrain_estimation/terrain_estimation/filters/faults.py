@@ -13,7 +13,8 @@ disturbance, a fault of the model, rounding):
     factor that is not lower-triangular with a non-negative finite diagonal
     (:func:`sqrt_factor_fault`);
   - a covariance blow-up: a variance above ``max_variance_growth`` times its
-    reference (the covariance the monitor was started with), or above
+    reference (the covariance the monitor was started with, or the filter
+    last re-initialised with by :meth:`DivergenceMonitor.recover`), or above
     ``max_variance``;
   - the mean NIS over the last ``window`` accepted updates outside its
     two-sided χ² band (probability ``probability``) for ``persistence``
@@ -30,7 +31,10 @@ disturbance, a fault of the model, rounding):
 * **Recovery** (:meth:`DivergenceMonitor.recover`): re-initialisation from the
   last good estimate, i.e. its mean with the reference covariance
   (``reinit_covariance="initial"``, re-opens the uncertainty so the filter
-  re-converges) or with its own covariance (``"last_good"``). The last good
+  re-converges) or with its own covariance (``"last_good"``), times
+  ``reinit_inflation`` (the last good estimate is at least ``persistence``
+  updates old: where the reference covariance is tight, e.g. pinned by the
+  measurements of a fresh start, it would hold the filter there). The last good
   estimate is the newest state observed while the window of NIS values was
   full and inside its band (and nothing else was wrong), or the state the
   monitor was started with.
@@ -42,7 +46,9 @@ disturbance, a fault of the model, rounding):
 :func:`guarded_step` runs one predict + update of any filter of this package
 under a monitor: a filter exception (non-finite model output, a broken
 factor) counts as a divergence, a non-finite measurement is skipped, and the
-returned state is always finite.
+returned state is always finite. An estimator that runs its own steps hands
+each step's outcome to :meth:`DivergenceMonitor.supervise` (fail or observe,
+then recover), as the soil-stiffness, skid-steer and rover estimators do.
 """
 
 # ruff: noqa: N803, N806 - matrix symbols (P, S, Q, R, W, ...) of the papers
@@ -86,14 +92,16 @@ class DivergenceConfig:
         max_rejections: consecutive gate rejections that make a divergence
             (gate lock-out), ``≥ 1``; None disables (default 10).
         max_variance_growth: a variance above this multiple of its reference
-            (the diagonal of the covariance at :meth:`DivergenceMonitor.start`)
-            is a blow-up; ``> 1``, None disables (default 1e6: a standard
+            (the diagonal of the covariance at :meth:`DivergenceMonitor.start`,
+            or of the re-initialised one after :meth:`DivergenceMonitor.recover`
+            where larger) is a blow-up; ``> 1``, None disables (default 1e6: a standard
             deviation 1000 times the initial one). States with a zero
             reference variance are covered by ``max_variance`` only.
         max_variance: absolute bound on every variance (state units²); None
             disables (default).
         reinit_covariance: covariance of the re-initialised state:
             ``"initial"`` (the reference covariance) or ``"last_good"``.
+        reinit_inflation: factor (≥ 1, default 1) on that covariance.
     """
 
     window: int = 20
@@ -104,6 +112,7 @@ class DivergenceConfig:
     max_variance_growth: float | None = 1e6
     max_variance: float | None = None
     reinit_covariance: Literal["initial", "last_good"] = "initial"
+    reinit_inflation: float = 1.0
 
     def __post_init__(self) -> None:
         for name in ("window", "persistence"):
@@ -122,6 +131,9 @@ class DivergenceConfig:
         v = self.max_variance
         if v is not None and not (math.isfinite(v) and v > 0.0):
             raise ValueError(f"max_variance must be None or finite and > 0, got {v}")
+        r = self.reinit_inflation
+        if isinstance(r, bool) or not isinstance(r, int | float) or not (math.isfinite(r) and r >= 1.0):
+            raise ValueError(f"reinit_inflation must be finite and >= 1, got {r!r}")
         if self.reinit_covariance not in ("initial", "last_good"):
             raise ValueError(f"reinit_covariance must be 'initial' or 'last_good', got {self.reinit_covariance!r}")
 
@@ -331,7 +343,7 @@ class DivergenceMonitor:
         """Re-initialise from the last good estimate: ``filt.initial_state(x_good, P)``.
 
         ``P`` is the reference covariance or the last good one
-        (``reinit_covariance``). The NIS window restarts; :attr:`fault` stays
+        (``reinit_covariance``), times ``reinit_inflation``. The NIS window restarts; :attr:`fault` stays
         set until the new window is full and inside its band.
 
         Args:
@@ -345,12 +357,44 @@ class DivergenceMonitor:
             P = self._ref_P
         else:
             P = np.asarray(good.covariance, dtype=float)
-        P = 0.5 * (P + P.T)
+        P = 0.5 * (P + P.T) * self.config.reinit_inflation
         state = filt.initial_state(x, P)
+        # Blow-up reference: the re-initialised variances, never tighter than the start's.
+        self._ref_var = np.maximum(np.diagonal(self._ref_P), np.diagonal(P))
         fault = self.fault
         self._clear_episode()
         self.fault = fault
         return state
+
+    def supervise(
+        self,
+        filt: Any,
+        state: Any,
+        info: UpdateInfo | None = None,
+        *,
+        failure: str | None = None,
+    ) -> tuple[Any, DivergenceCheck]:
+        """One filter step's outcome under the monitor: the state to keep and the verdict.
+
+        For an estimator that runs its own steps (its own gating, noise,
+        inputs) and reports what came out: :meth:`fail` when the step failed,
+        else :meth:`observe`, then :meth:`recover` on a divergence.
+        :func:`guarded_step` is this around a plain predict + update.
+
+        Args:
+            filt: the filter (its ``initial_state`` re-initialises on a divergence).
+            state: the step's posterior (not looked at when ``failure`` is given).
+            info: the update (None for a predict-only step).
+            failure: why the step failed (the filter raised, ...), or None.
+
+        Returns:
+            ``(state, check)``: ``state`` itself, or the re-initialised state
+            of :meth:`recover` when ``check.diverged``.
+        """
+        check = self.fail(failure) if failure is not None else self.observe(state, info)
+        if check.diverged:
+            return self.recover(filt), check
+        return state, check
 
 
 def guarded_step(
@@ -385,9 +429,7 @@ def guarded_step(
             if zv is not None:
                 new, info = filt.update(new, zv, model, u)
     except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
-        check = monitor.fail(f"filter step failed: {exc}")
-        return monitor.recover(filt), None, check
-    check = monitor.observe(new, info)
-    if check.diverged:
-        return monitor.recover(filt), info, check
-    return new, info, check
+        state, check = monitor.supervise(filt, state, failure=f"filter step failed: {exc}")
+        return state, None, check
+    state, check = monitor.supervise(filt, new, info)
+    return state, info, check

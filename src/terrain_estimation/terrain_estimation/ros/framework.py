@@ -65,6 +65,7 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from scipy.stats import chi2
 
+from terrain_estimation.filters.faults import DivergenceConfig
 from terrain_estimation.params import ParameterError, ParamSpec, ParamValue
 from terrain_estimation.ros import diagnostics as diag
 from terrain_estimation.ros.qos import CLOCK_QOS, qos_for
@@ -81,6 +82,9 @@ __all__ = [
     "declare_specs",
     "input_specs",
     "input_frame",
+    "divergence_specs",
+    "divergence_config",
+    "divergence_errors",
     "spin_node",
 ]
 
@@ -164,6 +168,84 @@ def input_frame(values: Mapping[str, ParamValue], namespace: str, key: str) -> s
         return frame.lstrip("/")
     ns = namespace.strip("/")
     return f"{ns}/{frame}" if ns else frame
+
+
+def divergence_specs(check_low_note: str | None = None) -> tuple[ParamSpec, ...]:
+    """The ``filter.divergence_*`` parameters of an estimator with a divergence monitor.
+
+    (:class:`~terrain_estimation.filters.faults.DivergenceMonitor`; read back
+    by :func:`divergence_config`, reported by :func:`divergence_errors`.)
+
+    Args:
+        check_low_note: None: no ``filter.divergence_check_low`` parameter
+            (the NIS band is two-sided); else that parameter, default false,
+            with this note on why in its description.
+    """
+    specs = (
+        ParamSpec(
+            "filter.divergence_window",
+            0,
+            "[updates] divergence monitor: windowed mean NIS against its chi2 band, covariance blow-up and gate "
+            "lock-out; on a divergence the filter restarts from the last good estimate (diagnostic ERROR, then OK); "
+            "0 disables (default: the reproductions run without it)",
+            0,
+            10000,
+        ),
+        ParamSpec(
+            "filter.divergence_probability",
+            0.999,
+            "[-] two-sided probability of the windowed mean NIS band of the divergence monitor",
+            0.5,
+            0.999999,
+        ),
+        ParamSpec(
+            "filter.divergence_persistence",
+            10,
+            "[updates] consecutive out-of-band windows that make a divergence",
+            1,
+            10000,
+        ),
+    )
+    if check_low_note is None:
+        return specs
+    return (
+        *specs,
+        ParamSpec(
+            "filter.divergence_check_low",
+            False,
+            f"a windowed mean NIS below its band (covariance far too large) is a divergence too; {check_low_note}",
+        ),
+    )
+
+
+def divergence_config(values: Mapping[str, ParamValue]) -> DivergenceConfig | None:
+    """The monitor's settings from the parameters of :func:`divergence_specs`; None when disabled (window 0).
+
+    Also reads ``filter.divergence_reinit_inflation`` and ``filter.divergence_max_variance_growth``
+    where the node declares them.
+    """
+    window = int(values["filter.divergence_window"])
+    if window <= 0:
+        return None
+    extra: dict[str, Any] = {}
+    if "filter.divergence_check_low" in values:
+        extra["check_low"] = bool(values["filter.divergence_check_low"])
+    for name in ("reinit_inflation", "max_variance_growth"):
+        if f"filter.divergence_{name}" in values:
+            extra[name] = float(values[f"filter.divergence_{name}"])
+    return DivergenceConfig(
+        window=window,
+        probability=float(values["filter.divergence_probability"]),
+        persistence=int(values["filter.divergence_persistence"]),
+        **extra,
+    )
+
+
+def divergence_errors(fault: str | None, divergences: int) -> list[str]:
+    """:attr:`AdapterHealth.errors` of an estimator's divergence fault (empty when healthy)."""
+    if not fault:
+        return []
+    return [f"filter diverged ({fault}): restarted from the last good estimate ({divergences} divergence(s) so far)"]
 
 
 @dataclass

@@ -34,10 +34,17 @@ from terrain_estimation.estimators.soil_stiffness import (
     SoilStiffnessEstimator,
     SoilStiffnessEstimatorConfig,
 )
-from terrain_estimation.filters.faults import DivergenceConfig
 from terrain_estimation.models.quarter_car import LRVParams, QuarterCarParams
 from terrain_estimation.params import ParamSpec, ParamValue
-from terrain_estimation.ros.framework import AdapterHealth, TopicSpec, input_frame, input_specs
+from terrain_estimation.ros.framework import (
+    AdapterHealth,
+    TopicSpec,
+    divergence_config,
+    divergence_errors,
+    divergence_specs,
+    input_frame,
+    input_specs,
+)
 from terrain_estimation.ros.time import sec_to_stamp, stamp_to_ns
 from terrain_msgs.msg import SoilStiffness
 
@@ -178,29 +185,7 @@ _FILTER_SPECS: tuple[ParamSpec, ...] = (
         choices=("exact", "paper"),
     ),
     ParamSpec("filter.gate_threshold", 0.0, "[-] Mahalanobis (NIS) gate on updates; 0 disables", 0.0, 1e6),
-    ParamSpec(
-        "filter.divergence_window",
-        0,
-        "[updates] divergence monitor: windowed mean NIS against its chi2 band, covariance blow-up and gate "
-        "lock-out; on a divergence the filter restarts from the last good estimate (diagnostic ERROR, then OK); "
-        "0 disables (default: the reproductions run without it)",
-        0,
-        10000,
-    ),
-    ParamSpec(
-        "filter.divergence_probability",
-        0.999,
-        "[-] two-sided probability of the windowed mean NIS band of the divergence monitor",
-        0.5,
-        0.999999,
-    ),
-    ParamSpec(
-        "filter.divergence_persistence",
-        10,
-        "[updates] consecutive out-of-band windows that make a divergence",
-        1,
-        10000,
-    ),
+    *divergence_specs(),
 )
 
 _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
@@ -381,16 +366,7 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SoilStiffnessEstimator
         )
     k_tot0 = _f(values, "filter.k_tot0")
     gate = _f(values, "filter.gate_threshold")
-    window = int(values["filter.divergence_window"])
-    divergence = (
-        DivergenceConfig(
-            window=window,
-            probability=_f(values, "filter.divergence_probability"),
-            persistence=int(values["filter.divergence_persistence"]),
-        )
-        if window > 0
-        else None
-    )
+    divergence = divergence_config(values)
     return SoilStiffnessEstimatorConfig(
         vehicle=values["vehicle.kind"],
         filter=values["filter.type"],
@@ -569,15 +545,7 @@ class SoilStiffnessAdapter:
                 profile_rejected=c.profile_rejected,
                 divergences=c.divergences,
             )
-        fault = self.estimator.fault
-        h.errors = (
-            [
-                f"filter diverged ({fault}): restarted from the last good estimate "
-                f"({self.estimator.counters.divergences} divergence(s) so far)"
-            ]
-            if fault
-            else []
-        )
+        h.errors = divergence_errors(self.estimator.fault, self.estimator.counters.divergences)
         return estimates
 
 
