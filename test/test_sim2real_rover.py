@@ -146,6 +146,58 @@ def test_soil_change_replay_closes_the_gap_except_at_the_change() -> None:
         assert with_effect < without, name
 
 
+def test_soil_change_distance_starts_at_the_change() -> None:
+    """The change-location scan puts the fit's start of the distance at the change (the gradient cannot walk there)."""
+    values = {
+        "soil_change_distance": 0.42,
+        "soil_change_cohesion_scale": 0.5,
+        "soil_change_friction_angle_change": -0.05,
+        "soil_change_modulus_scale": 0.7,
+        "soil_change_shear_modulus_scale": 1.5,
+    }
+    model = build_model_from_series(series_from_run(_run({"soil_change": values})))
+    distance = next(p for p in model.candidates["soil_change"].parameters if p.name == "soil_change_distance")
+    assert distance.off == pytest.approx(0.42, abs=0.01)
+    assert distance.bounds == (0.0, 10.0)
+
+
+def test_wheel_inversion_on_a_flat_torque_curve(nominal: tuple[Any, RoverReplay]) -> None:
+    """A loose, high-friction changed soil: τ_R(i) rises by 3 % from i = 0.3 to 0.8 (withheld bag 1a648d392558).
+
+    Started from the nominal soil's slip (the replay's warm start) or near the slip bounds, the safeguarded
+    Newton finds the slip and load that produce the measured torque and cell forces; a plain Newton step
+    overshot to the bounds there and the replay with the plant's own soil change left a gap 5000 times the
+    nominal one.
+    """
+    from terrain_estimation.sim2real.rover import _SoilVariant, _solve_wheels
+
+    _, model = nominal
+    changed = {
+        "soil_change_distance": 0.0,
+        "soil_change_cohesion_scale": 0.112,
+        "soil_change_friction_angle_change": 0.137,
+        "soil_change_modulus_scale": 0.673,
+        "soil_change_shear_modulus_scale": 0.294,
+    }
+    soil = effects_for("rover", {"soil_change": changed}, soil=model.soil).soil_change_soil
+    variants = [(_SoilVariant(soil, 0.0), 1.0)]
+    slip = np.array([0.05, 0.3, 0.2, 0.3, 0.3, -0.2])
+    load = np.array([36.0, 36.0, 36.0, 60.0, 20.0, 36.0])
+    dp, tau = model.soil_model.forces(load, slip, variants=variants)
+
+    def forces(rows: Any, w: np.ndarray, i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return model.soil_model.forces(w, i, variants=variants)
+
+    for start in (0.16, 0.9, 0.998, -0.9):
+        guess = np.full(slip.size, start)
+        found_slip, found_load, found_dp = _solve_wheels(
+            forces, tau, load**2 + dp**2, guess, np.sqrt(load**2 + dp**2), ((2, 1), (1, 1))
+        )
+        np.testing.assert_allclose(found_slip, slip, atol=1e-4)
+        np.testing.assert_allclose(found_load, load, atol=1e-3)
+        np.testing.assert_allclose(found_dp, dp, atol=1e-3)
+
+
 def test_sensor_delay_is_not_identifiable_at_2_cm_s() -> None:
     """Only the effort is undelayed and it changes slowly at 2 cm/s: a 60 ms delay leaves no gap.
 
