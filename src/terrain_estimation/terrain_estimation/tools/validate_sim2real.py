@@ -350,12 +350,14 @@ def _signature_markdown(scores: dict[str, Any]) -> list[str]:
         "",
         "The signature of a bag is measured by the generator, never shown to the diagnosis (labels.json): the bag "
         "minus its twin (the same plan with the effect off and the same noise realisation), per noisy sensor "
-        "channel, over the noise σ of that channel (from two nominal runs differing only in the noise seed). "
+        "channel of the vehicle's responses (IMUs; rover also load cells and velocimeter; not the inputs a "
+        "replay is driven by, road profile and drive encoders, nor the GNSS fix), over the noise σ of that "
+        "channel (from two nominal runs differing only in the noise seed). "
         "SNR = sqrt(Σ channels Σ samples (Δ/σ)²) is what an ideal matched-filter detector, knowing the effect's "
         "shape and magnitude, would see in white sensor noise; below 3 there was (almost) nothing to see. It is "
-        "an upper bound: the diagnosis also has to separate the effect from what it does not know (soil, road, "
-        "initial state), and channels with a tiny noise (the rover's wheel encoders) or a deterministic "
-        "quantisation (the skid steer's motor speeds) make it large; each channel's share is in labels.json.",
+        "an upper bound: the diagnosis also has to separate the effect from what it does not know and fits "
+        "(soil stiffness, road, initial state): an effect a nuisance absorbs (a nonlinear soil about its static "
+        "point against a fitted k_s) keeps a large SNR here. Each channel's share is in labels.json.",
         "",
         "| vehicle | " + " | ".join(header.get(n, n) for n in names) + " | SNR ≥ 3 |",
         "|---|" + "---|" * (len(names) + 1),
