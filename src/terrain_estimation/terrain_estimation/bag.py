@@ -211,14 +211,19 @@ class AtomicBagWriter:
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         writer, self._writer = self._writer, None
+        if exc_type is not None:
+            # The partial bag is thrown away: no close(), which would first write the index of
+            # every message so far (slow on a long run, and after an interrupt inside the
+            # writer its state may be half-updated). The open file goes with the writer.
+            del writer
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            return
         try:
             if writer is not None:
                 writer.close()
-        finally:
-            if exc_type is not None:
-                shutil.rmtree(self._tmp, ignore_errors=True)
-        if exc_type is not None:
-            return
+        except BaseException:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise
         # rosbags names the storage file after the directory: rename it too so
         # the final bag is self-consistent (<name>/<name>.mcap + metadata.yaml).
         final_name = self.path.name
