@@ -186,3 +186,33 @@ def test_bad_values_are_refused_with_topic_field_and_value():
         bag_data_from_arrays(np.r_[t[:5], t[:5]], accel[:10], np.zeros(10), t, motor, transmission_ratio=27.13)
     with pytest.raises(Sim2RealError, match="do not overlap"):
         bag_data_from_arrays(t + 100.0, accel, np.zeros(300), t, motor, transmission_ratio=27.13)
+
+
+def test_roll_and_pitch_gyros_carry_the_load_transfer_dynamics():
+    # The sprung mass's roll and pitch rates are the effect's most direct signature: with the IMU's
+    # gyro x, y measured, the nominal (rigid) replay misses them and the replay with the effect has them.
+    result = _simulate("s_shape", {"load_transfer_dynamics": {}}, duration=10.0)
+
+    def data(body_rates):
+        return bag_data_from_arrays(
+            result.t,
+            result.linear_acceleration,
+            result.angular_velocity[:, 2],
+            result.t,
+            result.motor_velocity,
+            transmission_ratio=VEHICLE.transmission_ratio,
+            body_rates=body_rates,
+        )
+
+    model = SkidSteerReplay(data(result.angular_velocity[:, :2]), VEHICLE, warmup=WARMUP)
+    assert {"roll_rate", "pitch_rate"} <= {c.name for c in model.channels}
+    nominal = _rms_over_sigma(model, {})
+    with_effect = _rms_over_sigma(model, {"load_transfer_dynamics": {}})
+    assert max(nominal["roll_rate"], nominal["pitch_rate"]) > 1.5, nominal
+    assert with_effect["roll_rate"] < 1.1 and with_effect["pitch_rate"] < 1.1, with_effect
+    # Not compared when the IMU does not measure them, or on a rigid chassis (nothing to predict).
+    assert "roll_rate" not in {c.name for c in SkidSteerReplay(data(None), VEHICLE, warmup=WARMUP).channels}
+    rigid = replace(VEHICLE, suspension=None)
+    assert "pitch_rate" not in {
+        c.name for c in SkidSteerReplay(data(result.angular_velocity[:, :2]), rigid, warmup=WARMUP).channels
+    }
