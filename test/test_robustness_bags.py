@@ -24,12 +24,18 @@ from terrain_estimation.bag import AtomicBagWriter, BagError, read_bag
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 
 # A child that writes an endless stream of messages over ``path`` and says when it has started.
+# It restores Python's SIGINT handler: a process started in the background by a non-interactive
+# shell (`make test &`) inherits SIGINT ignored, and Python then never raises KeyboardInterrupt
+# (one clean-clone run timed out so, its child still writing 20 min later). Ctrl-C in a terminal,
+# what the test stands for, reaches a foreground process with the handler in place.
 WRITER = textwrap.dedent(
     """
+    import signal
     import sys
     from std_msgs.msg import Float64
     from terrain_estimation.bag import AtomicBagWriter
 
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     path = sys.argv[1]
     with AtomicBagWriter(path) as writer:
         for i in range(10**9):
@@ -55,7 +61,12 @@ def _kill_while_writing(path: Path, sig: int) -> int:
     line = proc.stdout.readline()  # blocks until the child is deep inside the write loop
     assert line.strip() == "writing", line
     proc.send_signal(sig)
-    return proc.wait(timeout=30)
+    try:
+        return proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()  # never leave an endless writer behind
+        proc.wait()
+        raise
 
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["SIGKILL", "SIGINT"])
