@@ -139,7 +139,7 @@ def test_bad_noise_budget_is_refused() -> None:
 
 def _fitted(residual: np.ndarray, blocks: np.ndarray) -> FittedModel:
     chi2 = float(np.dot(residual, residual))
-    return FittedModel((), {}, {}, {}, 0, 0.0, chi2, chi2, {}, test_residual=residual, test_block=blocks.astype(int))
+    return FittedModel((), {}, {}, {}, 0, 0.0, chi2, chi2, {}, test_residual=residual, test_segment=blocks.astype(int))
 
 
 def _ar1(rng: np.random.Generator, n_blocks: int, per_block: int, rho: float) -> np.ndarray:

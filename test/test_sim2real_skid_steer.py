@@ -33,16 +33,20 @@ def _simulate(manoeuvre: str, effects: dict, duration: float = 8.0, seed: int = 
     return simulate_skid_steer(replace(scenario, duration=duration), seed)
 
 
-def _model(result) -> SkidSteerReplay:
-    data = bag_data_from_arrays(
+def _data(result, body_rates=None):
+    return bag_data_from_arrays(
         result.t,
         result.linear_acceleration,
         result.angular_velocity[:, 2],
         result.t,
         result.motor_velocity,
         transmission_ratio=VEHICLE.transmission_ratio,
+        body_rates=body_rates,
     )
-    return SkidSteerReplay(data, VEHICLE, warmup=WARMUP)
+
+
+def _model(result) -> SkidSteerReplay:
+    return SkidSteerReplay(_data(result), VEHICLE, warmup=WARMUP)
 
 
 def _rms_over_sigma(model: SkidSteerReplay, effects: dict) -> dict[str, float]:
@@ -192,27 +196,14 @@ def test_roll_and_pitch_gyros_carry_the_load_transfer_dynamics():
     # The sprung mass's roll and pitch rates are the effect's most direct signature: with the IMU's
     # gyro x, y measured, the nominal (rigid) replay misses them and the replay with the effect has them.
     result = _simulate("s_shape", {"load_transfer_dynamics": {}}, duration=10.0)
-
-    def data(body_rates):
-        return bag_data_from_arrays(
-            result.t,
-            result.linear_acceleration,
-            result.angular_velocity[:, 2],
-            result.t,
-            result.motor_velocity,
-            transmission_ratio=VEHICLE.transmission_ratio,
-            body_rates=body_rates,
-        )
-
-    model = SkidSteerReplay(data(result.angular_velocity[:, :2]), VEHICLE, warmup=WARMUP)
+    rates = result.angular_velocity[:, :2]
+    model = SkidSteerReplay(_data(result, rates), VEHICLE, warmup=WARMUP)
     assert {"roll_rate", "pitch_rate"} <= {c.name for c in model.channels}
     nominal = _rms_over_sigma(model, {})
     with_effect = _rms_over_sigma(model, {"load_transfer_dynamics": {}})
     assert max(nominal["roll_rate"], nominal["pitch_rate"]) > 1.5, nominal
     assert with_effect["roll_rate"] < 1.1 and with_effect["pitch_rate"] < 1.1, with_effect
     # Not compared when the IMU does not measure them, or on a rigid chassis (nothing to predict).
-    assert "roll_rate" not in {c.name for c in SkidSteerReplay(data(None), VEHICLE, warmup=WARMUP).channels}
+    assert "roll_rate" not in {c.name for c in SkidSteerReplay(_data(result), VEHICLE, warmup=WARMUP).channels}
     rigid = replace(VEHICLE, suspension=None)
-    assert "pitch_rate" not in {
-        c.name for c in SkidSteerReplay(data(result.angular_velocity[:, :2]), rigid, warmup=WARMUP).channels
-    }
+    assert "pitch_rate" not in {c.name for c in SkidSteerReplay(_data(result, rates), rigid, warmup=WARMUP).channels}

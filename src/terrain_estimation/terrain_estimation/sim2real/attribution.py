@@ -147,8 +147,8 @@ class FittedModel:
         shrinkage: 1 − G / G_nominal per channel and ``"overall"`` (nominal: 0).
         shrinkage_ci: Bootstrap interval of the overall shrinkage.
         p_better: Confidence that the held-out χ² is below the nominal's (one-sided
-            paired test of the held-out χ² difference, block-robust variance; see
-            :func:`_compare`).
+            paired test of the held-out χ² difference, Newey–West variance;
+            :func:`_p_better`).
         significant: Improvement over the nominal counts (p_better, min_improvement).
         at_noise: Its held-out residuals pass the noise tests on every channel.
         residual_gaps: What the noise tests still flag on the held-out part.
@@ -173,14 +173,14 @@ class FittedModel:
     residual_gaps: list[str] = field(default_factory=list)
     evaluations: int = 0
     seconds: float = 0.0
-    # Held-out block χ² sums (for the bootstrap), the stacked held-out residuals and their block
-    # index (for the paired test); not in to_dict().
+    # Held-out block χ² sums (for the bootstrap), the stacked held-out residuals and their
+    # (channel, block) segment ids (for the paired test); not in to_dict().
     block_chi2: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
     block_n: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
     test_residual: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
-    test_block: NDArray[np.int_] = field(default_factory=lambda: np.zeros(0, dtype=int), repr=False)
+    test_segment: NDArray[np.int_] = field(default_factory=lambda: np.zeros(0, dtype=int), repr=False)
 
-    _INTERNAL = ("block_chi2", "block_n", "test_residual", "test_block")
+    _INTERNAL = ("block_chi2", "block_n", "test_residual", "test_segment")
 
     @property
     def name(self) -> str:
@@ -289,6 +289,7 @@ class _Problem:
     test_blocks: dict[str, Any]
     blocks: FloatArray
     evaluations: int = 0
+    _segments: NDArray[np.int_] | None = None
 
     def residuals(
         self, effects: Mapping[str, Mapping[str, float]], nuisance: Mapping[str, float]
@@ -308,16 +309,18 @@ class _Problem:
         """Segment id of every sample of ``stacked(·, test)``: one per (channel, held-out block).
 
         Within a segment the samples are consecutive in time (the paired test's
-        autocovariances are taken inside segments only).
+        autocovariances are taken inside segments only). The same for every fit: computed once.
         """
-        index = {int(b): i for i, b in enumerate(self.blocks)}
-        nb = len(self.blocks)
-        return np.concatenate(
-            [
-                k * nb + np.array([index[int(b)] for b in self.test_blocks[c.name]], dtype=int)
-                for k, c in enumerate(self.model.channels)
-            ]
-        )
+        if self._segments is None:
+            index = {int(b): i for i, b in enumerate(self.blocks)}
+            nb = len(self.blocks)
+            self._segments = np.concatenate(
+                [
+                    k * nb + np.array([index[int(b)] for b in self.test_blocks[c.name]], dtype=int)
+                    for k, c in enumerate(self.model.channels)
+                ]
+            )
+        return self._segments
 
     def block_sums(self, res: Mapping[str, FloatArray]) -> tuple[FloatArray, FloatArray]:
         chi = np.zeros(len(self.blocks))
@@ -479,7 +482,7 @@ def fit(
         block_chi2=block_chi2,
         block_n=block_n,
         test_residual=r_test,
-        test_block=problem.stacked_segments(),
+        test_segment=problem.stacked_segments(),
     )
 
 
@@ -535,7 +538,7 @@ def _p_better(fitted: FittedModel, reference: FittedModel) -> float:
         return 1.0 if fitted.test_chi2 < reference.test_chi2 else 0.0
     delta = r_ref - r_fit
     d = float(np.sum(delta * delta) + 2.0 * np.sum(r_fit * delta))
-    seg = fitted.test_block if fitted.test_block.size == r_fit.size else np.arange(r_fit.size)
+    seg = fitted.test_segment if fitted.test_segment.size == r_fit.size else np.arange(r_fit.size)
     var = max(_long_run_variance(r_fit * delta, seg), float(np.sum(delta * delta)))
     if var <= 0.0:
         return 1.0 if d > 0 else 0.0
@@ -549,18 +552,18 @@ def _long_run_variance(x: FloatArray, segment: NDArray[np.int_], max_lag: int = 
         return gamma0
     runs = np.diff(np.flatnonzero(np.r_[True, segment[1:] != segment[:-1], True]))
     top = int(min(max_lag, int(runs.max()) - 1))
-    gammas = []
-    for lag in range(1, top + 1):
+
+    def gamma(lag: int) -> float:
         same = segment[lag:] == segment[:-lag]
-        gammas.append(float(np.dot(x[lag:][same], x[:-lag][same])))
-        if gammas[-1] < 0.05 * gamma0:
-            break
+        return float(np.dot(x[lag:][same], x[:-lag][same]))
+
+    gammas: list[float] = []
+    while len(gammas) < top and (not gammas or gammas[-1] >= 0.05 * gamma0):
+        gammas.append(gamma(len(gammas) + 1))  # up to the lag at which x decorrelates
     bandwidth = min(2 * len(gammas), top)
-    for lag in range(len(gammas) + 1, bandwidth + 1):
-        same = segment[lag:] == segment[:-lag]
-        gammas.append(float(np.dot(x[lag:][same], x[:-lag][same])))
+    gammas += [gamma(lag) for lag in range(len(gammas) + 1, bandwidth + 1)]
     weights = 1.0 - np.arange(1, bandwidth + 1) / (bandwidth + 1.0)
-    return gamma0 + 2.0 * float(np.dot(weights, np.asarray(gammas[:bandwidth], dtype=float)))
+    return gamma0 + 2.0 * float(np.dot(weights, np.asarray(gammas, dtype=float)))
 
 
 def _noise_tests(
@@ -738,7 +741,7 @@ def attribute(
                 # The pair must also beat the single significantly.
                 p_vs_single = FittedModel((), {}, {}, {}, 0, 0.0, p.test_chi2, p.score, {})
                 p_vs_single.block_chi2, p_vs_single.block_n = p.block_chi2, p.block_n
-                p_vs_single.test_residual, p_vs_single.test_block = p.test_residual, p.test_block
+                p_vs_single.test_residual, p_vs_single.test_segment = p.test_residual, p.test_segment
                 _compare(p_vs_single, best, settings, rng)
                 p.significant = p.significant and p_vs_single.significant
                 pairs.append(p)

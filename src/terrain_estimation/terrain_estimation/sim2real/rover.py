@@ -1128,15 +1128,10 @@ class RoverReplay:
 
         The distance's bounds stay the catalogue's; its start (``off``, immaterial
         while the soil scales are 1) is the location :meth:`_change_location`
-        finds, else the middle of the wheels' travel.
-
-        Also sets :attr:`search_grids`: {effect: {parameter: values}} for a
-        location parameter an engine should search in 1-D rather than by
-        gradient (the wheel-centre positions the bag covers, 5 mm apart).
+        finds on the wheel-centre positions the bag covers, 5 mm apart, else the
+        middle of the wheels' travel.
         """
         out = dict(catalogue)
-        self.search_grids: dict[str, dict[str, FloatArray]] = {}
-        self.change_scan: dict[str, Any] = {}
         if "soil_change" in out:
             found: float | None = None
             x = self._wheel_x()
@@ -1145,9 +1140,7 @@ class RoverReplay:
             hi = min(10.0, float(np.max(x[use])))
             if hi > lo:
                 count = int(min(200, max(2, math.ceil((hi - lo) / 5e-3) + 1)))
-                grid = np.linspace(lo, hi, count)
-                self.search_grids["soil_change"] = {"soil_change_distance": grid}
-                found = self._change_location(grid)
+                found = self._change_location(np.linspace(lo, hi, count))
             params = []
             for prm in out["soil_change"].parameters:
                 if prm.name == "soil_change_distance" and hi > lo:
@@ -1216,7 +1209,6 @@ class RoverReplay:
                 continue
             beta, *_ = np.linalg.lstsq(design, target, rcond=None)
             rss[m] = float(np.sum((target - design @ beta) ** 2))
-        self.change_scan = {"distance": grid, "rss": rss}
         if not np.any(np.isfinite(rss)):
             return None
         return float(grid[int(np.argmin(rss))])
