@@ -116,16 +116,25 @@ def test_replay_with_the_effect_closes_the_gap(effect: str) -> None:
         assert value < 1.3, (effect, name, value, gap[name])
 
 
-def test_soil_change_replay_closes_the_gap_except_at_the_change() -> None:
-    values = {
-        "soil_change_distance": 0.42,
-        "soil_change_cohesion_scale": 0.5,
-        "soil_change_friction_angle_change": -0.05,
-        "soil_change_modulus_scale": 0.7,
-        "soil_change_shear_modulus_scale": 1.5,
-    }
-    run = _run({"soil_change": values})
-    model = build_model_from_series(series_from_run(run))
+SOIL_CHANGE = {
+    "soil_change_distance": 0.42,
+    "soil_change_cohesion_scale": 0.5,
+    "soil_change_friction_angle_change": -0.05,
+    "soil_change_modulus_scale": 0.7,
+    "soil_change_shear_modulus_scale": 1.5,
+}
+
+
+@pytest.fixture(scope="module")
+def soil_change_run() -> tuple[Any, RoverReplay]:
+    """A run with the soil changing at 0.42 m and its replay model (simulated once for the tests below)."""
+    run = _run({"soil_change": SOIL_CHANGE})
+    return run, build_model_from_series(series_from_run(run))
+
+
+def test_soil_change_replay_closes_the_gap_except_at_the_change(soil_change_run: tuple[Any, RoverReplay]) -> None:
+    values = SOIL_CHANGE
+    run, model = soil_change_run
     gap = _rms(model, {})
     assert max(gap.values()) > 3.0, gap
     changed = run.time[np.argmax(run.truth.soil_index[:, 2] > 0)]
@@ -146,18 +155,11 @@ def test_soil_change_replay_closes_the_gap_except_at_the_change() -> None:
         assert with_effect < without, name
 
 
-def test_soil_change_distance_starts_at_the_change() -> None:
+def test_soil_change_distance_starts_at_the_change(soil_change_run: tuple[Any, RoverReplay]) -> None:
     """The change-location scan puts the fit's start of the distance at the change (the gradient cannot walk there)."""
-    values = {
-        "soil_change_distance": 0.42,
-        "soil_change_cohesion_scale": 0.5,
-        "soil_change_friction_angle_change": -0.05,
-        "soil_change_modulus_scale": 0.7,
-        "soil_change_shear_modulus_scale": 1.5,
-    }
-    model = build_model_from_series(series_from_run(_run({"soil_change": values})))
+    _, model = soil_change_run
     distance = next(p for p in model.candidates["soil_change"].parameters if p.name == "soil_change_distance")
-    assert distance.off == pytest.approx(0.42, abs=0.01)
+    assert distance.off == pytest.approx(SOIL_CHANGE["soil_change_distance"], abs=0.01)
     assert distance.bounds == (0.0, 10.0)
 
 
