@@ -139,7 +139,8 @@ def test_bad_noise_budget_is_refused() -> None:
 
 def _fitted(residual: np.ndarray, blocks: np.ndarray) -> FittedModel:
     chi2 = float(np.dot(residual, residual))
-    return FittedModel((), {}, {}, {}, 0, 0.0, chi2, chi2, {}, test_residual=residual, test_segment=blocks.astype(int))
+    ids = blocks.astype(int)
+    return FittedModel((), {}, {}, {}, 0, 0.0, chi2, chi2, {}, test_residual=residual, test_segment=ids, test_block=ids)
 
 
 def _ar1(rng: np.random.Generator, n_blocks: int, per_block: int, rho: float) -> np.ndarray:
@@ -164,7 +165,24 @@ def test_paired_test_finds_a_gap_that_lives_in_one_block() -> None:
     assert p > 0.99
 
 
-@pytest.mark.parametrize("rho", [0.0, 0.9])
+def test_held_out_test_finds_a_small_effect_the_chi2_difference_misses() -> None:
+    # A constant change δ = 0.08 σ over 20 held-out blocks of 100 white samples: Σδ² = 12.8,
+    # so the matched filter's z is √12.8 = 3.6 on average, the χ² difference's half that.
+    rng = np.random.default_rng(5)
+    blocks = np.repeat(np.arange(20), 100)
+    delta = np.full(blocks.size, 0.08)
+    found = chi2_found = 0
+    trials = 200
+    for _ in range(trials):
+        noise = rng.standard_normal(blocks.size)
+        found += _p_better(_fitted(noise, blocks), _fitted(noise + delta, blocks)) >= 0.99
+        d = float(np.sum((noise + delta) ** 2) - np.sum(noise**2))  # the old statistic
+        chi2_found += d / (2.0 * math.sqrt(float(np.sum(delta**2)))) >= 2.326
+    assert found / trials >= 0.7  # 0.84 measured
+    assert chi2_found / trials <= 0.45  # 0.29 measured: the statistic of session 6 would fail the line above
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.9, 0.97])
 def test_paired_test_false_alarms_stay_below_the_level(rho: float) -> None:
     # The nominal model is right; a candidate's fitted change δ (from training data) is a small
     # random shape, independent of the held-out noise. Residuals white or AR(1) within blocks.

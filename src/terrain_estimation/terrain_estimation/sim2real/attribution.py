@@ -41,12 +41,16 @@ Method
          allowance) on every channel, and no effect improves the
          held-out score significantly;
        * "explained by X (shrinks the gap by N %)": the best effect (or pair)
-         improves the held-out score significantly (a paired one-sided test of
-         the held-out χ² difference with a block-robust variance) and its held-out
+         improves the held-out score significantly (the change it predicts is
+         found in the held-out data by a one-sided matched-filter test with a
+         block-robust variance, and it lowers the penalised held-out score by at
+         least :attr:`~AttributionSettings.min_improvement`) and its held-out
          residuals pass the same noise tests, or the lower bound of its
          shrinkage interval reaches :attr:`~AttributionSettings.explained_shrinkage`;
        * otherwise "not explained by the catalogue (best candidate X leaves
-         N % unexplained)".
+         N % unexplained)", with the reason when X's improvement is not
+         significant (a gap the noise tests flag that no candidate is shown to
+         close on held-out data, however much it shrinks on average).
        A runner-up whose held-out penalised score is within
        :attr:`~AttributionSettings.ambiguity` of the best is named as
        indistinguishable on this bag.
@@ -92,9 +96,10 @@ class AttributionSettings:
         pair_candidates: Candidates combined with the best one in the pair stage.
         bootstrap: Bootstrap resamples of the held-out blocks.
         confidence: Level of the intervals.
-        significance: Probability that the held-out improvement is real for
-            an effect (or a pair's second effect) to count (one-sided paired
-            test of the held-out χ² difference, :func:`_p_better`).
+        significance: Confidence that the change an effect (or a pair's
+            second effect) predicts is in the held-out data, for it to count
+            (one-sided matched-filter test, :func:`_p_better`); it must also
+            lower the penalised held-out score, by ``min_improvement``.
         min_improvement: Smallest relative held-out χ² reduction that counts
             (guards against significant but negligible improvements).
         explained_shrinkage: An effect whose shrinkage interval's lower bound
@@ -146,9 +151,9 @@ class FittedModel:
         gap: Held-out gap G per channel and ``"overall"``.
         shrinkage: 1 − G / G_nominal per channel and ``"overall"`` (nominal: 0).
         shrinkage_ci: Bootstrap interval of the overall shrinkage.
-        p_better: Confidence that the held-out χ² is below the nominal's (one-sided
-            paired test of the held-out χ² difference, Newey–West variance;
-            :func:`_p_better`).
+        p_better: Confidence that the held-out data contain the change this
+            model predicts over the nominal (one-sided matched filter,
+            Newey–West variance; :func:`_p_better`).
         significant: Improvement over the nominal counts (p_better, min_improvement).
         at_noise: Its held-out residuals pass the noise tests on every channel.
         residual_gaps: What the noise tests still flag on the held-out part.
@@ -173,14 +178,15 @@ class FittedModel:
     residual_gaps: list[str] = field(default_factory=list)
     evaluations: int = 0
     seconds: float = 0.0
-    # Held-out block χ² sums (for the bootstrap), the stacked held-out residuals and their
-    # (channel, block) segment ids (for the paired test); not in to_dict().
+    # Held-out block χ² sums (for the bootstrap), the stacked held-out residuals, their
+    # (channel, block) segment ids and their block ids (for the held-out test); not in to_dict().
     block_chi2: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
     block_n: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
     test_residual: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
     test_segment: NDArray[np.int_] = field(default_factory=lambda: np.zeros(0, dtype=int), repr=False)
+    test_block: NDArray[np.int_] = field(default_factory=lambda: np.zeros(0, dtype=int), repr=False)
 
-    _INTERNAL = ("block_chi2", "block_n", "test_residual", "test_segment")
+    _INTERNAL = ("block_chi2", "block_n", "test_residual", "test_segment", "test_block")
 
     @property
     def name(self) -> str:
@@ -483,6 +489,7 @@ def fit(
         block_n=block_n,
         test_residual=r_test,
         test_segment=problem.stacked_segments(),
+        test_block=problem.stacked_segments() % max(len(problem.blocks), 1),
     )
 
 
@@ -517,53 +524,93 @@ def _compare(
 
 
 def _p_better(fitted: FittedModel, reference: FittedModel) -> float:
-    """Confidence that ``fitted`` has a lower held-out χ² than ``reference`` (paired, one-sided).
+    """Confidence that the held-out data contain the change ``fitted`` predicts over ``reference`` (one-sided).
 
-    With δ = r_ref − r_fit per held-out sample (normalised residuals), the
-    difference is D = Σ (r_ref² − r_fit²) = Σ δ² + 2 Σ r_fit δ. The fitted
-    parameters come from the training part, so δ is fixed on the held-out part
-    and only the residual noise in r_fit varies: Var D = 4 Var(Σ x), x = r_fit δ.
-    Var(Σ x) is the long-run (Newey–West, Bartlett) variance of x, its
-    autocovariances taken inside each (channel, held-out block) segment up to
-    twice the lag at which x decorrelates (autocorrelation < 0.05), and never
-    below the white-noise value Σ δ² (unit variance: the noise budget).
-    z = D / (2 √Var Σ x) against the normal distribution. Unlike a bootstrap
-    over a handful of blocks, the test keeps its power when the gap lives in
-    one or two blocks (a delay that only shows while accelerating), and it does
-    not call three agreeing blocks certain. Under "the effect is spurious"
-    (r_ref is the noise) E[D] = −Σ δ² < 0.
+    δ = r_ref − r_fit per held-out sample (normalised residuals) is the change
+    the candidate, fitted on the training part, predicts there. The statistic
+    is its matched filter on the held-out data, T = Σ r_ref δ = Σ δ² + Σ r_fit δ:
+    under "the change is spurious" (r_ref is the noise, independent of δ, which
+    came from other samples) E T = 0; when the change is there (r_fit is the
+    noise) E T = Σ δ². Var T is estimated by batch means of x = r_fit δ
+    (:func:`_batch_means`: batches of at least five times the lag at which x
+    decorrelates, inside the held-out blocks, all channels of a batch
+    together), never below the white-noise value Σ δ² (unit variance: the
+    noise budget); z = T / √Var against Student's t with (batches − 1)
+    degrees of freedom. Measured in simulation: false alarms ≤ 2 % at the
+    0.99 level for white and AR(1) residuals up to ρ = 0.97 in 4–20 held-out
+    blocks of 80 samples, where a Newey–West variance with the normal
+    distribution gave up to 5.5 % (the test checks six blocks).
+
+    Not the held-out χ² difference D = Σ r_ref² − Σ r_fit² = 2T − Σ δ² (used
+    until session 6): for the same effect its z is half as large (E D = Σ δ²,
+    sd 2√Σδ²), and a change the fit overestimates twofold has E D = 0 although
+    it is plainly in the data. That the candidate also predicts better is asked
+    separately (:func:`_compare`: penalised held-out score, ``min_improvement``).
+    Unlike a bootstrap of whole held-out blocks, the test keeps its power when
+    the gap lives in one or two blocks (a delay that only shows while
+    accelerating): x is the noise times δ whatever δ's size.
     """
     r_fit, r_ref = fitted.test_residual, reference.test_residual
     if r_fit.size == 0 or r_fit.size != r_ref.size:
         return 1.0 if fitted.test_chi2 < reference.test_chi2 else 0.0
     delta = r_ref - r_fit
-    d = float(np.sum(delta * delta) + 2.0 * np.sum(r_fit * delta))
-    seg = fitted.test_segment if fitted.test_segment.size == r_fit.size else np.arange(r_fit.size)
-    var = max(_long_run_variance(r_fit * delta, seg), float(np.sum(delta * delta)))
-    if var <= 0.0:
-        return 1.0 if d > 0 else 0.0
-    return float(stats.norm.cdf(d / (2.0 * math.sqrt(var))))
+    energy = float(np.sum(delta * delta))
+    if energy <= 0.0:
+        return 0.5
+    projection = energy + float(np.sum(r_fit * delta))
+    seg = fitted.test_segment if fitted.test_segment.size == r_fit.size else np.zeros(r_fit.size, dtype=int)
+    block = fitted.test_block if fitted.test_block.size == r_fit.size else seg
+    var, batches = _batch_means(r_fit * delta, seg, block)
+    var = max(var, energy)
+    if batches < 2:
+        return float(stats.norm.cdf(projection / math.sqrt(var)))
+    return float(stats.t.cdf(projection / math.sqrt(var), batches - 1))
 
 
-def _long_run_variance(x: FloatArray, segment: NDArray[np.int_], max_lag: int = 500) -> float:
-    """Var(Σ x) for x autocorrelated inside runs of equal ``segment`` id (Newey–West, Bartlett weights)."""
+def _decorrelation_lag(x: FloatArray, segment: NDArray[np.int_], max_lag: int = 500) -> int:
+    """The first lag at which the autocorrelation of x (taken inside equal-``segment`` runs) is below 0.05."""
     gamma0 = float(np.dot(x, x))
-    if gamma0 <= 0.0 or x.size < 3:
-        return gamma0
-    runs = np.diff(np.flatnonzero(np.r_[True, segment[1:] != segment[:-1], True]))
-    top = int(min(max_lag, int(runs.max()) - 1))
-
-    def gamma(lag: int) -> float:
+    lag = 0
+    while gamma0 > 0.0 and lag < min(max_lag, x.size - 1):
+        lag += 1
         same = segment[lag:] == segment[:-lag]
-        return float(np.dot(x[lag:][same], x[:-lag][same]))
+        if not same.any() or float(np.dot(x[lag:][same], x[:-lag][same])) < 0.05 * gamma0:
+            break
+    return max(lag, 1)
 
-    gammas: list[float] = []
-    while len(gammas) < top and (not gammas or gammas[-1] >= 0.05 * gamma0):
-        gammas.append(gamma(len(gammas) + 1))  # up to the lag at which x decorrelates
-    bandwidth = min(2 * len(gammas), top)
-    gammas += [gamma(lag) for lag in range(len(gammas) + 1, bandwidth + 1)]
-    weights = 1.0 - np.arange(1, bandwidth + 1) / (bandwidth + 1.0)
-    return gamma0 + 2.0 * float(np.dot(weights, np.asarray(gammas, dtype=float)))
+
+def _batch_means(
+    x: FloatArray, segment: NDArray[np.int_], block: NDArray[np.int_], per_lag: int = 5, shortest: int = 10
+) -> tuple[float, int]:
+    """(Var(Σ x) by non-overlapping batch means, number of batches).
+
+    ``segment``: the (channel, held-out block) of each sample, consecutive in
+    time inside; ``block``: its held-out block. Each block is cut into k
+    batches of equal relative length, k from its shortest channel segment and
+    the batch length max(per_lag × the decorrelation lag of x, shortest); a
+    batch gathers the samples of every channel in that stretch of time
+    (channels of one instant share the road, the wheel speeds: their noise
+    may be correlated). Held-out blocks are separated by training blocks, so
+    batches are treated as independent; Var = Σ over batches of (Σ x)².
+    """
+    length = max(per_lag * _decorrelation_lag(x, segment), shortest)
+    starts = np.flatnonzero(np.r_[True, segment[1:] != segment[:-1]])
+    ends = np.r_[starts[1:], x.size]
+    sizes = ends - starts
+    blocks = block[starts]
+    shortest_in = {int(b): int(sizes[blocks == b].min()) for b in np.unique(blocks)}
+    ids = np.empty(x.size, dtype=np.int64)
+    offset: dict[int, int] = {}
+    total = 0
+    for b in shortest_in:
+        offset[b] = total
+        total += max(1, shortest_in[b] // length)
+    for s, e, b in zip(starts, ends, blocks, strict=True):
+        k = max(1, shortest_in[int(b)] // length)
+        n = int(e - s)
+        ids[s:e] = offset[int(b)] + (np.arange(n) * k) // n
+    sums = np.bincount(ids, weights=x, minlength=total)
+    return float(np.dot(sums, sums)), total
 
 
 def _noise_tests(
@@ -742,6 +789,7 @@ def attribute(
                 p_vs_single = FittedModel((), {}, {}, {}, 0, 0.0, p.test_chi2, p.score, {})
                 p_vs_single.block_chi2, p_vs_single.block_n = p.block_chi2, p.block_n
                 p_vs_single.test_residual, p_vs_single.test_segment = p.test_residual, p.test_segment
+                p_vs_single.test_block = p.test_block
                 _compare(p_vs_single, best, settings, rng)
                 p.significant = p.significant and p_vs_single.significant
                 pairs.append(p)
@@ -780,7 +828,16 @@ def attribute(
     else:
         assert best is not None
         left = 100.0 * (1.0 - best.shrinkage["overall"])
-        verdict = f"not explained by the catalogue (best candidate {best.name} leaves {left:.0f} % unexplained)"
+        verdict = f"not explained by the catalogue (best candidate {best.name} leaves {left:.0f} % unexplained"
+        if not best.significant:  # the noise tests see a gap; no candidate's held-out change is shown to close it
+            rel = 100.0 * (1.0 - best.test_chi2 / max(nominal.test_chi2, 1e-12))
+            why = (
+                f"confidence {best.p_better:.3f} < {settings.significance:g}"
+                if best.p_better < settings.significance
+                else f"held-out χ² lowered by {rel:.1f} %, penalised score {best.score:.1f} vs {nominal.score:.1f}"
+            )
+            verdict += f"; its held-out improvement is not significant: {why}"
+        verdict += ")"
     series: dict[str, dict[str, FloatArray]] = {"nominal": model.predict(nominal.parameters, nominal.nuisance)}
     if best is not None:
         series[best.name] = model.predict(best.parameters, best.nuisance)

@@ -47,15 +47,19 @@ vehicle's config, nothing else) and answers three questions:
    thirds of the bag (interleaved 1 s blocks) and scored on the held-out third
    (χ² + p ln n, p the parameters it adds); when the best single effect does
    not bring the residual to the noise, pairs are tried (forward selection).
-   An effect counts when its held-out χ² improvement is significant at 0.99 by
-   a paired one-sided test (the difference's variance from the residuals'
-   Newey–West long-run variance, never below the noise budget's) and at least 2 %.
+   An effect counts when the change it predicts on the held-out part is found
+   there at 0.99 (a one-sided matched-filter test: the projection of the
+   nominal's held-out residual on that change, its variance from batch means
+   inside the held-out blocks, never below the noise budget's, against
+   Student's t) and it lowers the held-out χ² by at least 2 % and the
+   penalised score.
 3. **How far the gap shrinks**: gap = mean normalised residual power above the
    noise, shrinkage = 1 − gap(with effect) / gap(nominal) on the held-out part,
    with a block-bootstrap interval.
 
 The verdict is "no significant gap", "explained by X (shrinks the gap by N %)"
-or "not explained by the catalogue (best candidate X leaves N % unexplained)".
+or "not explained by the catalogue (best candidate X leaves N % unexplained)"
+(with the reason when X's held-out improvement is not significant).
 The engine is generic (`terrain_estimation.sim2real.attribution`); each
 vehicle provides a replay model (`terrain_estimation.sim2real.<vehicle>`).
 """
