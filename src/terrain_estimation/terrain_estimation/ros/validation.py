@@ -46,8 +46,10 @@ from __future__ import annotations
 import array
 import math
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
+from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -110,10 +112,28 @@ def field_value(msg: Any, path: str) -> Any:
         LookupError: the joint is not in ``msg.name`` or the array is too short;
             its args are (field, value, problem) for a :class:`Rejection`.
     """
-    obj = msg
+    return _path_getter(path)(msg)
+
+
+@lru_cache(maxsize=1024)
+def _path_getter(path: str) -> Callable[[Any], Any]:
+    """``path`` parsed once: a function of the message doing :func:`field_value`."""
+    if "[" not in path:
+        return attrgetter(path)
+    steps: list[tuple[str, str | None]] = []
     for part in path.split("."):
         if part.endswith("]") and "[" in part:
             attr, joint = part[:-1].split("[", 1)
+            steps.append((attr, joint))
+        else:
+            steps.append((part, None))
+
+    def get(msg: Any) -> Any:
+        obj = msg
+        for attr, joint in steps:
+            if joint is None:
+                obj = getattr(obj, attr)
+                continue
             values = getattr(obj, attr)
             names = list(obj.name)
             if joint not in names:
@@ -122,13 +142,20 @@ def field_value(msg: Any, path: str) -> Any:
             if index >= len(values):
                 raise LookupError(f"len({attr})", str(len(values)), f"is too short for joint {joint!r}")
             obj = values[index]
-        else:
-            obj = getattr(obj, part)
-    return obj
+        return obj
+
+    return get
 
 
 def first_nonfinite(msg: Any, prefix: str = "") -> tuple[str, float] | None:
     """The first non-finite float in ``msg`` (recursively, arrays included) as (field, value), else None."""
+    if _all_finite(msg):
+        return None
+    return _first_nonfinite_walk(msg, prefix)
+
+
+def _first_nonfinite_walk(msg: Any, prefix: str = "") -> tuple[str, float] | None:
+    """:func:`first_nonfinite` field by field: the reference, run when :func:`_all_finite` is not sure."""
     for name in msg.get_fields_and_field_types():
         value = getattr(msg, name)
         path = prefix + name
@@ -136,7 +163,7 @@ def first_nonfinite(msg: Any, prefix: str = "") -> tuple[str, float] | None:
             if not math.isfinite(value):
                 return path, value
         elif hasattr(value, "get_fields_and_field_types"):
-            found = first_nonfinite(value, path + ".")
+            found = _first_nonfinite_walk(value, path + ".")
             if found is not None:
                 return found
         elif isinstance(value, (np.ndarray, array.array)):
@@ -149,10 +176,131 @@ def first_nonfinite(msg: Any, prefix: str = "") -> tuple[str, float] | None:
                 if isinstance(item, float) and not math.isfinite(item):
                     return f"{path}[{i}]", item
                 if hasattr(item, "get_fields_and_field_types"):
-                    found = first_nonfinite(item, f"{path}[{i}].")
+                    found = _first_nonfinite_walk(item, f"{path}[{i}].")
                     if found is not None:
                         return found
     return None
+
+
+# -- the fast path of first_nonfinite ---------------------------------------------------------
+#
+# Per message class, a plan made once from the first message seen: the nested messages
+# (expanded into dotted paths, their classes checked on every call), the numeric scalar
+# fields (summed: a finite sum proves every term finite) and the other fields (checked
+# by their run-time type, as _first_nonfinite_walk does). True proves that the walk
+# would find nothing; False (a non-finite value, an overflowing sum, anything
+# unexpected) hands the message to the walk, which finds the first non-finite float.
+
+
+def _tuple_getter(paths: Sequence[str]) -> Callable[[Any], tuple[Any, ...]]:
+    """attrgetter of ``paths`` that always returns a tuple."""
+    if not paths:
+        return lambda _msg: ()
+    if len(paths) == 1:
+        get = attrgetter(paths[0])
+        return lambda msg: (get(msg),)
+    return attrgetter(*paths)
+
+
+@dataclass(frozen=True)
+class _Plan:
+    nested: Callable[[Any], tuple[Any, ...]]  # the nested messages
+    types: tuple[type, ...]  # ... and their classes
+    scalars: Callable[[Any], tuple[Any, ...]]  # int, float and bool fields
+    others: Callable[[Any], tuple[Any, ...]]  # strings, arrays, sequences, anything else
+
+
+_PLANS: dict[type, _Plan | None] = {}
+
+
+def _storage(cls: type, name: str, obj: Any) -> str:
+    """Where field ``name`` is stored: the rosidl slot ``_name`` behind the property ``name``, else ``name``."""
+    slot = "_" + name
+    if isinstance(getattr(cls, name, None), property) and slot in getattr(cls, "__slots__", ()):
+        try:
+            if getattr(obj, slot) is getattr(obj, name):
+                return slot
+        except AttributeError:
+            pass
+    return name
+
+
+def _make_plan(msg: Any) -> _Plan | None:
+    nested: list[str] = []
+    types: list[type] = []
+    scalars: list[str] = []
+    others: list[str] = []
+
+    def walk(obj: Any, prefix: str) -> None:
+        for name in obj.get_fields_and_field_types():
+            attr = _storage(type(obj), name, obj)
+            value = getattr(obj, attr)
+            path = prefix + attr
+            if isinstance(value, (int, float)):
+                scalars.append(path)
+            elif hasattr(value, "get_fields_and_field_types"):
+                nested.append(path)
+                types.append(type(value))
+                walk(value, path + ".")
+            else:
+                others.append(path)
+
+    try:
+        walk(msg, "")
+    except Exception:  # not a message this plan can describe: the walk decides
+        return None
+    return _Plan(_tuple_getter(nested), tuple(types), _tuple_getter(scalars), _tuple_getter(others))
+
+
+def _all_finite(msg: Any) -> bool:
+    """True when :func:`_first_nonfinite_walk` would find nothing in ``msg``; False: run it."""
+    cls = type(msg)
+    try:
+        plan = _PLANS[cls]
+    except KeyError:
+        plan = _PLANS[cls] = _make_plan(msg)
+    if plan is None:
+        return False
+    try:
+        if plan.types and tuple(map(type, plan.nested(msg))) != plan.types:
+            return False
+        if not math.isfinite(sum(plan.scalars(msg))):
+            return False
+        for value in plan.others(msg):
+            if type(value) is not str and not _value_finite(value):
+                return False
+    except Exception:  # anything unexpected: the walk decides (and raises if it does)
+        return False
+    return True
+
+
+_INT_TYPECODES = frozenset("bBhHiIlLqQ")
+
+
+def _value_finite(value: Any) -> bool:
+    """False when ``value`` (a field that is not a numeric scalar) may hold a non-finite float."""
+    if isinstance(value, float):
+        return math.isfinite(value)
+    if hasattr(value, "get_fields_and_field_types"):
+        return _all_finite(value)
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind != "f":
+            return True
+        if value.ndim == 1 and value.size <= 256:
+            return math.isfinite(sum(value.tolist()))
+        return bool(np.isfinite(value).all())
+    if isinstance(value, array.array):
+        if value.typecode in _INT_TYPECODES:
+            return True
+        return value.typecode in "fd" and math.isfinite(sum(value))
+    if isinstance(value, (list, tuple)):
+        for item in value:
+            if isinstance(item, float):
+                if not math.isfinite(item):
+                    return False
+            elif hasattr(item, "get_fields_and_field_types") and not _all_finite(item):
+                return False
+    return True
 
 
 class _GravityWindow:
@@ -160,16 +308,19 @@ class _GravityWindow:
 
     def __init__(self, window_s: float) -> None:
         self.window_s = window_s
-        self.samples: deque[tuple[float, np.ndarray]] = deque()
-        self.total: np.ndarray | None = None
+        self.samples: deque[tuple[float, tuple[float, ...]]] = deque()
+        self.total: list[float] | None = None  # (Python floats: the same sums as float64 arrays, faster)
         self.bad = False
 
-    def add(self, t: float, vector: np.ndarray) -> None:
+    def add(self, t: float, vector: tuple[float, ...]) -> None:
         self.samples.append((t, vector))
-        self.total = vector.copy() if self.total is None else self.total + vector
+        if self.total is None:
+            self.total = list(vector)
+        else:
+            self.total = [a + b for a, b in zip(self.total, vector, strict=True)]
         while self.samples and t - self.samples[0][0] > self.window_s:
             _, old = self.samples.popleft()
-            self.total -= old
+            self.total = [a - b for a, b in zip(self.total, old, strict=True)]
 
     def mean_norm(self) -> float | None:
         """|mean vector|, or None while the window spans less than half its length."""
@@ -177,7 +328,8 @@ class _GravityWindow:
             return None
         if self.samples[-1][0] - self.samples[0][0] < 0.5 * self.window_s:
             return None
-        return float(np.linalg.norm(self.total / len(self.samples)))
+        mean = np.array(self.total) / len(self.samples)
+        return math.sqrt(float(mean.dot(mean)))  # what np.linalg.norm computes, without its overhead
 
 
 class InputGuard:
@@ -197,6 +349,10 @@ class InputGuard:
         self.rebase_after = int(values["input.restart_after_out_of_order"])
         self.rejected: dict[str, int] = {}
         self.accepted = 0
+        self._plans: dict[str, _InputPlan] = {}
+        # (key, covariance field) -> the bytes of the last covariance found usable: a sensor
+        # usually sends the same one every time, and the same bytes get the same verdict.
+        self._usable_covariance: dict[tuple[str, str], bytes] = {}
         self.reset()
 
     def reset(self) -> None:
@@ -250,28 +406,42 @@ class InputGuard:
                 return Rejection(topic, "header.stamp", value, "went back for good (a new time line)", rebase=True)
             return Rejection(topic, "header.stamp", value, "is before the previous sample's (out of order)")
         self._behind.pop(key, None)
-        for path in (*spec.fields, *spec.gravity_fields):
+        plan = self._plans.get(key)
+        if plan is None or plan.spec is not spec:
+            plan = self._plans[key] = _InputPlan(spec)
+        values = []
+        for path, get in plan.fields:
             try:
-                value = field_value(msg, path)
+                value = get(msg)
             except LookupError as exc:
                 return Rejection(topic, *exc.args)
             if not math.isfinite(float(value)):
                 return Rejection(topic, path, _fmt(float(value)), "is not finite")
-        for path in spec.covariances:
-            problem = _covariance_problem(np.asarray(field_value(msg, path), dtype=float))
+            values.append(value)
+        for path, get in plan.covariances:
+            cov = np.asarray(get(msg), dtype=float)
+            raw = cov.tobytes() if cov.ndim == 1 else None
+            if raw is not None and self._usable_covariance.get((key, path)) == raw:
+                continue
+            problem = _covariance_problem(cov)
             if problem is not None:
                 return Rejection(topic, path, problem[0], problem[1])
+            if raw is not None:
+                self._usable_covariance[(key, path)] = raw
         window = self._gravity.get(key)
         if window is not None:
-            rejection = self._check_gravity(spec, window, stamp_s, msg)
+            vector = tuple(float(v) for v in values[len(spec.fields) :])
+            rejection = self._check_gravity(spec, window, stamp_s, vector)
             if rejection is not None:
                 self._last_stamp_ns[key] = stamp_ns  # the stream's order is still followed
                 return rejection
         self._last_stamp_ns[key] = stamp_ns
         return None
 
-    def _check_gravity(self, spec: Any, window: _GravityWindow, t: float, msg: Any) -> Rejection | None:
-        window.add(t, np.array([float(field_value(msg, p)) for p in spec.gravity_fields]))
+    def _check_gravity(
+        self, spec: Any, window: _GravityWindow, t: float, vector: tuple[float, ...]
+    ) -> Rejection | None:
+        window.add(t, vector)
         norm = window.mean_norm()
         if norm is None:
             return None
@@ -297,6 +467,15 @@ class InputGuard:
             problem,
             restart=first,
         )
+
+
+class _InputPlan:
+    """The checked fields of one input TopicSpec, their paths parsed once."""
+
+    def __init__(self, spec: Any) -> None:
+        self.spec = spec
+        self.fields = tuple((p, _path_getter(p)) for p in (*spec.fields, *spec.gravity_fields))
+        self.covariances = tuple((p, _path_getter(p)) for p in spec.covariances)
 
 
 def _covariance_problem(cov: np.ndarray) -> tuple[str, str] | None:
