@@ -125,36 +125,16 @@ Measured (simulator, Table IV noise; ``test/test_sim2real_rover.py``)
     plant's transient (body acceleration spike, bogie rate step) is faster
     than the smoothing above and leaves a residual of a few σ in the ż0^R
     differences (still far below the nominal replay's there). At the one
-    sample where a wheel enters the changed soil the residual is the plant's
-    rather than the replay's: the plant evaluates the soil at a normal load W
-    held from the start of the step, computed with the previous step's (old
-    soil's) forces, and its load cells report that W, while the constraint
-    reaction that acts on the wheel is computed with the new soil's forces
-    (0.5–3 N apart at that sample, a median 4e-4 N elsewhere). A real cell
-    reads the reaction that acts; the replay does not imitate the held load
-    (a simulator artefact, not a property of a soil boundary). On the
-    test's run (front wheel, rolling terrain, true parameters) that sample
-    reads 44 σ in ``moment_body``, −9 σ in ``moment_bogie``, 7 σ in
-    ``accel_z`` and −25 σ in ``vz_front_middle``; with the cells rebuilt from
-    the reaction that acts (same noise) 1.2, −2.0, −2.3 and −13 σ, what the
-    central differences of the encoder angles straddling the switch of τ_R
-    leave (noiseless, withheld bag 79235a4d18c0's soils on step_wide: −54 →
-    6.6 σ in ``moment_body``). On the withheld-effect suite this sample
-    weighs on two verdicts: on 79235a4d18c0 it falls in held-out blocks and
-    the moment channels' held-out gaps it makes are 1.3 of the 2.0 (7 % of
-    the nominal 28.7) that the true parameters leave. On 915deb8e1580 (a
-    mild change) the true parameters leave no held-out gap (nominal 1.0);
-    the crossing is at the start of a training block, and the fit moves the
-    change 4.5 mm earlier into the held-out block before it, lowering the
-    training χ² of the crossing's block (12 σ in ``vz_front_middle`` at the
-    crossing sample, part of it the held load, part the straddle) by 1065 at
-    a held-out cost of 2225: 24 % left. On
-    1a648d392558 the true parameters leave 0.93 of 212, in the ż0^R
-    differences within 2 s of the crossing (a loose soil: a large transient),
-    but the fit starts 12 cm beyond the change (the scan above) and stays
-    there (6 %). A rover that stalls on the changed soil (slip 1,
-    stick-slip) is outside the quasi-static replay: withheld bag 9a51da3d1271
-    keeps 92 % of its gap with the true parameters.
+    sample where a wheel enters the changed soil, the central differences of
+    the encoder angles straddle the switch of τ_R: a few σ in the moment and
+    accelerometer channels, ≈ 13 σ in ``vz_front_middle`` (test's run, front
+    wheel, true parameters). Until session 7 the plant's load cells reported
+    the normal load held from the previous step (computed with the old soil's
+    forces) instead of the reaction that acts, 0.5–3 N apart at that sample:
+    44 σ in ``moment_body`` there, a simulator artefact the plant no longer
+    has. A rover that stalls on the changed soil (slip 1, stick-slip) is
+    outside the quasi-static replay: withheld bag 9a51da3d1271 kept 92 % of
+    its gap with the true parameters.
 
 What the bag cannot show
     * ``sensor_delay``: only the effort is undelayed, and at 2 cm/s it changes

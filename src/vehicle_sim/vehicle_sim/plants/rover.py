@@ -63,6 +63,13 @@ What is held over a 50 Hz step, and why
     the full model at θ0 = π/2 (``overload="saturate"``), the surrogate at
     the 200 N edge of its fitting grid.
 
+    The load cells read the contact force that acts at the sample: DP of
+    this step's model and the normal load of λ evaluated with it. The held
+    W_j is the soil model's input; the two agree to ≈ 4e-4 N (median) except
+    at the sample where a wheel enters another soil, where DP jumps and λ
+    with it (0.5–3 N). Until session 7 the cells reported the held W_j: a
+    40–50 σ spike in the replay of a soil change that no real cell makes.
+
 Slip (eqs. 1–2)
     From the wheel's absolute spin θ̇ + q̇1 + q̇_j (θ̇ + q̇4 for the front wheel)
     and the centre's speed along the path tangent, clipped to [−1, 1]
@@ -830,7 +837,8 @@ class RoverTruth:
         terrain_curvature: κ_t of the terrain under each wheel (1/m).
         constraint_residual: Ψ (m).
         vertical_reaction: λ (N), eq. 30.
-        load_axial, load_perpendicular: noise-free F_L, F_⊥ (N), eqs. 81–82.
+        load_axial, load_perpendicular: noise-free F_L, F_⊥ (N), eqs. 81–82, of the
+            contact force that acts at the sample (its normal load from λ, not the held W).
         wheel_torque: τ_W applied from this sample on (N·m).
         soil_index: 0 = scenario soil, 1 = changed soil (effect), per wheel.
         substeps: RK4 steps of the coming control step.
@@ -1437,7 +1445,13 @@ class RoverSimulator:
         gamma = -np.arctan(evaluation.slope)
         epsilon = carrier_angles(p, g)
         load = np.where(model.normal_load > 0.0, model.normal_load, 0.0)
-        axial, perpendicular = load_cell_forces(load, evaluation.drawbar_pull, gamma, epsilon)
+        # The cells read the contact force that acts: the normal load of the constraint reaction
+        # at this sample with this step's DP model, not the W held for the soil model (computed
+        # with the previous step's forces). The two agree to ≈ 4e-4 N (median) except where a
+        # wheel enters another soil: there DP jumps and the reaction with it, 0.5-3 N in one step.
+        acting = evaluation.vertical_reaction * np.sqrt(1.0 + evaluation.slope**2)
+        acting = np.where(load > 0.0, np.maximum(acting, 0.0), 0.0)
+        axial, perpendicular = load_cell_forces(acting, evaluation.drawbar_pull, gamma, epsilon)
         x = evaluation.centres[:, 0]
         truth = RoverTruth(
             configuration=g.copy(),
