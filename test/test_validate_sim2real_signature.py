@@ -122,3 +122,18 @@ def test_old_labels_without_signature_still_score(tmp_path: Path) -> None:
     assert "| **all** | – | – | – | – | 50.0 % of 6 | – of 0 |" in text
     assert "6 bags without a signature left out" in text
     assert "[signature unknown]" in text
+
+
+def test_rough_road_controls_are_shown_apart_and_counted_as_controls(tmp_path: Path) -> None:
+    suite = tmp_path / "suite"
+    suite.mkdir()
+    labels = {
+        "c1": _label("lrv", "control") | {"scenario": {"scenario.road": "C"}},
+        "c2": _label("lrv", "control") | {"scenario": {"scenario.road": "F"}},
+    }
+    (suite / "labels.json").write_text(json.dumps({"labels": labels}))
+    results = [_result("c1", "lrv", "no_gap"), _result("c2", "lrv", "not_explained")]
+    lrv = score(suite, results)["lrv"]
+    assert lrv["controls"] == 2 and lrv["controls_no_gap"] == pytest.approx(0.5)
+    assert set(lrv["confusion"]) == {"control", "control (F road)"}
+    assert [m["truth"] for m in lrv["misses"]] == ["control (F road)"]

@@ -126,6 +126,23 @@ def test_drawn_magnitudes_in_fit_range_and_visible(vehicle: str) -> None:
             assert signs[p.name] == {-1.0, 1.0}, p.name
 
 
+def test_liftoff_bags_and_rough_road_controls_drive_rough_roads() -> None:
+    # Wheel-liftoff bags drive ISO 8608 E/F roads (on B-D the quarter car's wheel never leaves the
+    # ground); rough-road controls, drawn last, check that a rough road alone is not read as lift-off.
+    base = plan_suite(4, ["quarter_car"], per_effect=3, controls=4, rough_controls=0)
+    for plan in base:
+        assert (plan.scenario["scenario.road"] in ("E", "F")) == (plan.effect == "wheel_liftoff"), plan.id
+    more = plan_suite(4, ["quarter_car"], per_effect=3, controls=4, rough_controls=3)
+    assert more[: len(base)] == base  # the bags before them do not depend on their number
+    extra = more[len(base) :]
+    assert len(extra) == 3
+    assert all(p.kind == "control" and p.effect is None and p.scenario["scenario.road"] in ("E", "F") for p in extra)
+    assert len(plan_suite(4, ["quarter_car"], per_effect=3, controls=4)) == len(base) + 2  # default: controls // 2
+    for vehicle in ("skid_steer", "rover"):
+        plans = plan_suite(4, [vehicle], per_effect=0, controls=4, out_of_catalogue=0)
+        assert len(plans) == 4  # no roads: no rough-road controls
+
+
 def test_rover_soil_change_is_reached() -> None:
     plans = plan_suite(3, ["rover"], per_effect=10, controls=0, out_of_catalogue=0, effects=["soil_change"])
     for plan in plans:

@@ -39,7 +39,7 @@ import subprocess
 import sys
 import time
 from collections import Counter, defaultdict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
@@ -229,6 +229,16 @@ def _miss_signature(lab: dict[str, Any]) -> dict[str, Any] | None:
     return {"snr": sig.get("snr"), "most_affected": sig.get("most_affected")}
 
 
+#: ISO 8608 classes of the rough-road controls (vehicle_sim.tools.withheld: the wheel-liftoff bags' roads).
+ROUGH_ROADS = ("E", "F")
+
+
+def _control_name(label: Mapping[str, Any]) -> str:
+    """``"control"``, or ``"control (E road)"`` for a rough-road control (shown apart in the confusion matrix)."""
+    road = str((label.get("scenario") or {}).get("scenario.road", ""))
+    return f"control ({road} road)" if road in ROUGH_ROADS else "control"
+
+
 def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Join the blind results with ``labels.json`` and compute the must-show figures per vehicle."""
     labels = json.loads((suite / "labels.json").read_text(encoding="utf-8"))["labels"]
@@ -257,7 +267,7 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
             truth = (
                 lab["effect"]
                 if lab["kind"] == "effect"
-                else ("control" if lab["kind"] == "control" else f"ooc: {lab['out_of_catalogue']}")
+                else (_control_name(lab) if lab["kind"] == "control" else f"ooc: {lab['out_of_catalogue']}")
             )
             confusion[truth][_predicted(r)] += 1
         per_effect: dict[str, dict[str, int]] = defaultdict(lambda: {"n": 0, "right": 0})
@@ -288,7 +298,9 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "misses": [
                 {
                     "id": r["id"],
-                    "truth": lab["effect"] if lab["kind"] == "effect" else lab["kind"],
+                    "truth": lab["effect"]
+                    if lab["kind"] == "effect"
+                    else (_control_name(lab) if lab["kind"] == "control" else lab["kind"]),
                     "parameters": lab.get("parameters") or lab.get("out_of_catalogue_parameters"),
                     "verdict": r["verdict"],
                     "signature": _miss_signature(lab),

@@ -12,7 +12,11 @@ Writes, for each vehicle (``quarter_car``, ``lrv``, ``skid_steer``, ``rover``):
   switches on by default);
 * ``--out-of-catalogue`` bags (default ``N`` × the number of kinds, cycling
   through them) with an effect that is *not* in the catalogue
-  (:data:`OUT_OF_CATALOGUE`), applied to the messages after the adapter.
+  (:data:`OUT_OF_CATALOGUE`), applied to the messages after the adapter;
+* quarter car and LRV: ``--rough-controls`` more controls (default half of
+  ``--controls``) on the rough roads of the wheel-liftoff bags (ISO 8608 E, F),
+  so that a diagnosis that takes a rough road for lift-off is caught. They are
+  drawn last, so the bags above do not depend on their number.
 
 Every bag is an ordinary contract bag, as a real robot records it
 (CONTRACT.md): the sensor topics of the vehicle's simulator adapter
@@ -22,7 +26,8 @@ random start time (a real bag's stamps start at any value; here uniformly in
 [1.6e9, 1.8e9] s, whole nanoseconds; log time = header stamp). The vehicle's
 scenario varies too, so that the diagnosis cannot learn one scenario: quarter
 car and LRV: ISO 8608 road class (B, C, D or the meadow stand-in; E or F for
-the wheel-liftoff bags, the only roads on which the wheel leaves the ground),
+the wheel-liftoff bags, the only roads on which the wheel leaves the ground,
+and for the rough-road controls),
 road realisation and soil from a small set; skid steer: manoeuvre; rover: terrain.
 The noise seed is drawn per bag. Durations are drawn per bag (quarter car /
 LRV 10–20 s, skid steer 15–20 s, rover 30–60 s) unless ``--duration`` fixes
@@ -215,13 +220,13 @@ _SCALE_CHANNEL = {
 }
 
 _ROADS = ("B", "C", "D", "meadow_c")
-#: Roads of the wheel-liftoff bags (quarter car, LRV): ISO 8608 E and F. A unilateral contact
-#: changes the response only where the dynamic tyre load exceeds the static one; on the roads
-#: above at the simulators' speeds it never does for the quarter car (session 6: six of six
-#: wheel_liftoff bags identical to their twins, signature SNR 0), so those bags tested whether
-#: the diagnosis could find an effect that was not there. Drawn with the same random number as
-#: the others' road, so the rest of the suite is unchanged.
-_LIFTOFF_ROADS = ("E", "F")
+#: Roads of the wheel-liftoff bags and of the rough-road controls (quarter car, LRV): ISO 8608
+#: E and F. A unilateral contact changes the response only where the dynamic tyre load exceeds
+#: the static one; on the roads above at the simulators' speeds it never does for the quarter
+#: car (session 6: six of six wheel_liftoff bags identical to their twins, signature SNR 0), so
+#: those bags tested whether the diagnosis could find an effect that was not there. Drawn with
+#: the same random number as the others' road, so the rest of the suite is unchanged.
+_ROUGH_ROADS = ("E", "F")
 _SOILS = {
     "quarter_car": ("graneville_loam", "upland_sandy_loam", "north_gower_clayey_loam", "rubicon_sandy_loam"),
     "lrv": ("graneville_loam", "upland_sandy_loam", "lete_sand", "lunar_regolith"),
@@ -323,11 +328,11 @@ def _vehicle_rng(seed: int, vehicle: str) -> np.random.Generator:
     return np.random.default_rng([int(seed), tag])
 
 
-def _scenario(vehicle: str, rng: np.random.Generator, effect: str | None = None) -> dict[str, Any]:
+def _scenario(vehicle: str, rng: np.random.Generator, rough: bool = False) -> dict[str, Any]:
     if vehicle in ("quarter_car", "lrv"):
         soils = _SOILS[vehicle]
         pick = int(rng.integers(len(_ROADS)))
-        roads = _LIFTOFF_ROADS if effect == "wheel_liftoff" else _ROADS
+        roads = _ROUGH_ROADS if rough else _ROADS
         return {
             "scenario.road": roads[pick % len(roads)],
             "scenario.road_seed": int(rng.integers(2**31 - 1)),
@@ -394,6 +399,7 @@ def plan_suite(
     out_of_catalogue: int | None = None,
     duration: float | None = None,
     effects: Sequence[str] | None = None,
+    rough_controls: int | None = None,
 ) -> list[BagPlan]:
     """Draw the whole suite (no simulation): one :class:`BagPlan` per bag, in generation order.
 
@@ -407,13 +413,20 @@ def plan_suite(
         duration: fixed duration (s) of every bag (default: drawn, :data:`DURATIONS`).
         effects: restrict to these catalogue effects (default: all; unknown
             names of a vehicle are an error only if no vehicle has them).
+        rough_controls: quarter car and LRV: more no-effect bags on the
+            rough roads (:data:`_ROUGH_ROADS`), drawn after all others
+            (default ``controls // 2``).
     """
     if per_effect < 0:
         raise ValueError(f"per-effect must be >= 0, got {per_effect}")
     n_controls = per_effect if controls is None else controls
     n_ooc = per_effect * len(OUT_OF_CATALOGUE) if out_of_catalogue is None else out_of_catalogue
-    if n_controls < 0 or n_ooc < 0:
-        raise ValueError(f"controls and out-of-catalogue counts must be >= 0, got {n_controls}, {n_ooc}")
+    n_rough = n_controls // 2 if rough_controls is None else rough_controls
+    if n_controls < 0 or n_ooc < 0 or n_rough < 0:
+        raise ValueError(
+            f"controls, out-of-catalogue and rough-road control counts must be >= 0, "
+            f"got {n_controls}, {n_ooc}, {n_rough}"
+        )
     if duration is not None and not duration > 0:
         raise ValueError(f"duration must be > 0 s, got {duration}")
     for v in vehicles:
@@ -433,20 +446,22 @@ def plan_suite(
         if vehicle == "rover":
             entry = get_simulator("rover")
             desired_speed = float(simulator_parameters(entry)["scenario.desired_speed"])
-        jobs: list[tuple[str, str | None, str | None]] = []
+        jobs: list[tuple[str, str | None, str | None, bool]] = []  # kind, effect, out-of-catalogue, rough road
         for name in CATALOGUE[vehicle]:
             if effects is None or name in effects:
-                jobs += [("effect", name, None)] * per_effect
-        jobs += [("control", None, None)] * n_controls
-        jobs += [("out_of_catalogue", None, ooc_names[i % len(ooc_names)]) for i in range(n_ooc)]
-        for kind, effect, ooc in jobs:
+                jobs += [("effect", name, None, name == "wheel_liftoff")] * per_effect
+        jobs += [("control", None, None, False)] * n_controls
+        jobs += [("out_of_catalogue", None, ooc_names[i % len(ooc_names)], False) for i in range(n_ooc)]
+        if vehicle in _SOILS:
+            jobs += [("control", None, None, True)] * n_rough
+        for kind, effect, ooc, rough in jobs:
             bag_id = rng.bytes(6).hex()
             while bag_id in ids:
                 bag_id = rng.bytes(6).hex()
             ids.add(bag_id)
             lo, hi = DURATIONS[vehicle]
             length = float(duration) if duration is not None else round(float(rng.uniform(lo, hi)), 2)
-            scenario = _scenario(vehicle, rng, effect)
+            scenario = _scenario(vehicle, rng, rough)
             bag_seed = int(rng.integers(2**31 - 1))
             start = int(rng.integers(int(_START_TIME_RANGE_S[0] * 1e9), int(_START_TIME_RANGE_S[1] * 1e9)))
             values: dict[str, float] = {}
@@ -1044,6 +1059,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         type=int,
         help=f"out-of-catalogue bags per vehicle, cycling {', '.join(OUT_OF_CATALOGUE)} (default: 3 x --per-effect)",
     )
+    parser.add_argument(
+        "--rough-controls",
+        type=int,
+        help="quarter car and LRV: more no-effect bags on ISO 8608 E/F roads (default: half of --controls)",
+    )
     parser.add_argument("--effect", action="append", help="only these catalogue effects (default: all)")
     parser.add_argument("--jobs", type=int, default=1, help="parallel simulation processes (default 1)")
     parser.add_argument(
@@ -1062,6 +1082,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             out_of_catalogue=args.out_of_catalogue,
             duration=args.duration,
             effects=args.effect,
+            rough_controls=args.rough_controls,
         )
         if not plans:
             raise ValueError("nothing to generate (all counts are 0)")
