@@ -8,6 +8,7 @@ a spy on what reaches the adapter, the estimates published, and the
 
 from __future__ import annotations
 
+import array
 import copy
 import functools
 import math
@@ -16,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from integration.replay import LockstepReplay
 from rosgraph_msgs.msg import Clock
@@ -170,3 +172,24 @@ class Harness(LockstepReplay):
 
 def all_finite(msg: Any) -> bool:
     return all(math.isfinite(v) for v in numeric_fields(msg).values())
+
+
+def float_paths(msg: Any, prefix: str = "") -> list[str]:
+    """Every float field of ``msg`` as a dotted path, arrays by index (``a.b[3]``), nested message lists included."""
+    paths = []
+    for name in msg.get_fields_and_field_types():
+        value = getattr(msg, name)
+        path = prefix + name
+        if isinstance(value, float):
+            paths.append(path)
+        elif hasattr(value, "get_fields_and_field_types"):
+            paths += float_paths(value, path + ".")
+        elif isinstance(value, (np.ndarray, array.array)) and np.asarray(value).dtype.kind == "f":
+            paths += [f"{path}[{i}]" for i in range(len(value))]
+        elif isinstance(value, (list, tuple)):
+            for i, item in enumerate(value):
+                if isinstance(item, float):
+                    paths.append(f"{path}[{i}]")
+                elif hasattr(item, "get_fields_and_field_types"):
+                    paths += float_paths(item, f"{path}[{i}].")
+    return paths

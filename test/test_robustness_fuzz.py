@@ -18,10 +18,10 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from robustness_harness import float_paths
 
 from terrain_estimation.bag import read_bag
 from terrain_estimation.ros.time import ns_to_stamp, stamp_to_ns
@@ -54,21 +54,6 @@ def _stream(vehicle: str) -> tuple[tuple[str, Any, int], ...]:
     return tuple(out)
 
 
-def _float_paths(msg: Any, prefix: str = "") -> list[str]:
-    paths = []
-    for name in msg.get_fields_and_field_types():
-        value = getattr(msg, name)
-        path = prefix + name
-        if isinstance(value, float):
-            paths.append(path)
-        elif hasattr(value, "get_fields_and_field_types"):
-            paths += _float_paths(value, path + ".")
-        elif isinstance(value, (list, tuple, np.ndarray)) or type(value).__name__ == "array":
-            if len(value) and isinstance(value[0], float):
-                paths += [f"{path}[{i}]" for i in range(len(value))]
-    return paths
-
-
 def _set(msg: Any, path: str, value: float) -> None:
     *parents, last = path.split(".")
     obj = msg
@@ -94,7 +79,7 @@ corruption = st.tuples(
 def _apply(msg: Any, kind: str, which: int, value: float, previous_ns: int) -> Any:
     msg = copy.deepcopy(msg)
     if kind == "float":
-        paths = _float_paths(msg)
+        paths = float_paths(msg)
         if paths:
             _set(msg, paths[which % len(paths)], value)
     elif kind == "stamp_ahead":

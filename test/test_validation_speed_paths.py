@@ -10,7 +10,6 @@ checked again.
 
 from __future__ import annotations
 
-import array
 import math
 from collections import deque
 from typing import Any
@@ -20,6 +19,7 @@ import pytest
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Vector3
 from nav_msgs.msg import Odometry
+from robustness_harness import float_paths
 from sensor_msgs.msg import Imu, JointState
 
 from terrain_estimation.ros import validation
@@ -56,24 +56,6 @@ def _model() -> TerrainResponseModel:
 
 def _joints() -> JointState:
     return JointState(name=["left_motor", "right_motor"], velocity=[1.0, 2.0], position=[0.0, 0.0])
-
-
-def _float_paths(msg: Any, prefix: str = "") -> list[str]:
-    paths = []
-    for name in msg.get_fields_and_field_types():
-        value = getattr(msg, name)
-        path = prefix + name
-        if isinstance(value, float):
-            paths.append(path)
-        elif hasattr(value, "get_fields_and_field_types"):
-            paths += _float_paths(value, path + ".")
-        elif isinstance(value, (np.ndarray, array.array)) and np.asarray(value).dtype.kind == "f":
-            paths += [f"{path}[{i}]" for i in range(len(value))]
-        elif isinstance(value, list):
-            for i, item in enumerate(value):
-                if hasattr(item, "get_fields_and_field_types"):
-                    paths += _float_paths(item, f"{path}[{i}].")
-    return paths
 
 
 def _set(msg: Any, path: str, value: float) -> None:
@@ -114,7 +96,7 @@ MESSAGES = {
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
 def test_every_float_of_a_cached_type_is_found_with_its_path(make, bad) -> None:
     assert first_nonfinite(make()) is None  # the plan of the type is cached from here on
-    paths = _float_paths(make())
+    paths = float_paths(make())
     assert paths
     for path in paths:
         msg = make()
