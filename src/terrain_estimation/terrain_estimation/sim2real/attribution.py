@@ -153,7 +153,7 @@ class FittedModel:
         shrinkage_ci: Bootstrap interval of the overall shrinkage.
         p_better: Confidence that the held-out data contain the change this
             model predicts over the nominal (one-sided matched filter,
-            Newey–West variance; :func:`_p_better`).
+            batch-means variance; :func:`_p_better`).
         significant: Improvement over the nominal counts (p_better, min_improvement).
         at_noise: Its held-out residuals pass the noise tests on every channel.
         residual_gaps: What the noise tests still flag on the held-out part.
