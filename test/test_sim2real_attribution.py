@@ -103,6 +103,8 @@ def test_an_effect_outside_the_candidates_is_not_explained() -> None:
     assert report.kind == "not_explained"
     assert report.verdict.startswith("not explained by the catalogue (best candidate")
     assert report.best is not None and report.best.shrinkage["overall"] < 0.2
+    # ... and says why the best candidate does not explain it.
+    assert "not significant: confidence" in report.verdict or "noise tests" in report.verdict, report.verdict
 
 
 def test_a_given_held_out_mask_is_used() -> None:

@@ -48,9 +48,11 @@ Method
          residuals pass the same noise tests, or the lower bound of its
          shrinkage interval reaches :attr:`~AttributionSettings.explained_shrinkage`;
        * otherwise "not explained by the catalogue (best candidate X leaves
-         N % unexplained)", with the reason when X's improvement is not
+         N % unexplained)", with the reason: X's improvement is not
          significant (a gap the noise tests flag that no candidate is shown to
-         close on held-out data, however much it shrinks on average).
+         close on held-out data, however much it shrinks on average), or X's
+         held-out residual still fails a noise test and its shrinkage interval
+         starts below :attr:`~AttributionSettings.explained_shrinkage`.
        A runner-up whose held-out penalised score is within
        :attr:`~AttributionSettings.ambiguity` of the best is named as
        indistinguishable on this bag.
@@ -837,6 +839,15 @@ def attribute(
                 else f"held-out χ² lowered by {rel:.1f} %, penalised score {best.score:.1f} vs {nominal.score:.1f}"
             )
             verdict += f"; its held-out improvement is not significant: {why}"
+        else:  # significant, but what is left is not the noise and the shrinkage is not clearly near-complete
+            low, high = (100.0 * x for x in best.shrinkage_ci)
+            if best.residual_gaps:
+                more = " …" if len(best.residual_gaps) > 1 else ""
+                verdict += f"; its held-out residual still fails the noise tests ({best.residual_gaps[0]}{more})"
+            verdict += (
+                f"; its shrinkage interval {low:.0f}–{high:.0f} % starts below "
+                f"{100.0 * settings.explained_shrinkage:.0f} %"
+            )
         verdict += ")"
     series: dict[str, dict[str, FloatArray]] = {"nominal": model.predict(nominal.parameters, nominal.nuisance)}
     if best is not None:
