@@ -229,13 +229,11 @@ def _miss_signature(lab: dict[str, Any]) -> dict[str, Any] | None:
     return {"snr": sig.get("snr"), "most_affected": sig.get("most_affected")}
 
 
-#: ISO 8608 classes of the rough-road controls (vehicle_sim.tools.withheld: the wheel-liftoff bags' roads).
-ROUGH_ROADS = ("E", "F")
-
-
 def _control_name(label: Mapping[str, Any]) -> str:
     """``"control"``, or ``"control (E road)"`` for a rough-road control (shown apart in the confusion matrix)."""
     road = str((label.get("scenario") or {}).get("scenario.road", ""))
+    from vehicle_sim.tools.withheld import ROUGH_ROADS  # the generator's road classes (a constant, not a label)
+
     return f"control ({road} road)" if road in ROUGH_ROADS else "control"
 
 

@@ -174,6 +174,7 @@ __all__ = [
     "RESPONSE_TOPICS",
     "DURATIONS",
     "OUT_OF_CATALOGUE",
+    "ROUGH_ROADS",
     "SIGMA_DURATION",
     "SIGMA_SEEDS",
     "VEHICLES",
@@ -226,7 +227,7 @@ _ROADS = ("B", "C", "D", "meadow_c")
 #: car (session 6: six of six wheel_liftoff bags identical to their twins, signature SNR 0), so
 #: those bags tested whether the diagnosis could find an effect that was not there. Drawn with
 #: the same random number as the others' road, so the rest of the suite is unchanged.
-_ROUGH_ROADS = ("E", "F")
+ROUGH_ROADS = ("E", "F")
 _SOILS = {
     "quarter_car": ("graneville_loam", "upland_sandy_loam", "north_gower_clayey_loam", "rubicon_sandy_loam"),
     "lrv": ("graneville_loam", "upland_sandy_loam", "lete_sand", "lunar_regolith"),
@@ -332,7 +333,7 @@ def _scenario(vehicle: str, rng: np.random.Generator, rough: bool = False) -> di
     if vehicle in ("quarter_car", "lrv"):
         soils = _SOILS[vehicle]
         pick = int(rng.integers(len(_ROADS)))
-        roads = _ROUGH_ROADS if rough else _ROADS
+        roads = ROUGH_ROADS if rough else _ROADS
         return {
             "scenario.road": roads[pick % len(roads)],
             "scenario.road_seed": int(rng.integers(2**31 - 1)),
@@ -414,7 +415,7 @@ def plan_suite(
         effects: restrict to these catalogue effects (default: all; unknown
             names of a vehicle are an error only if no vehicle has them).
         rough_controls: quarter car and LRV: more no-effect bags on the
-            rough roads (:data:`_ROUGH_ROADS`), drawn after all others
+            rough roads (:data:`ROUGH_ROADS`), drawn after all others
             (default ``controls // 2``).
     """
     if per_effect < 0:
