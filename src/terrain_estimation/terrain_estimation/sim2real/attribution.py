@@ -53,9 +53,11 @@ Method
          close on held-out data, however much it shrinks on average), or X's
          held-out residual still fails a noise test and its shrinkage interval
          starts below :attr:`~AttributionSettings.explained_shrinkage`.
-       A runner-up whose held-out penalised score is within
-       :attr:`~AttributionSettings.ambiguity` of the best is named as
-       indistinguishable on this bag.
+       A significant runner-up is named as indistinguishable on this bag when
+       the held-out data do not show the best one better (the change the best
+       predicts over it is not found at the ``significance`` level, or their
+       penalised scores are within :attr:`~AttributionSettings.ambiguity`):
+       :func:`_indistinguishable`.
 """
 
 from __future__ import annotations
@@ -115,7 +117,8 @@ class AttributionSettings:
             more than this is tried in a pair even when not significant overall.
         ambiguity: Held-out penalised-score difference (relative to the
             nominal model's excess χ²) under which two candidates are reported
-            as indistinguishable.
+            as indistinguishable (as are those the held-out test cannot tell
+            apart: :func:`_indistinguishable`).
         where: Noise tests used for "no significant gap" and "explained".
         seed: Seed of the bootstrap (analysis only; nothing of the data).
     """
@@ -569,6 +572,27 @@ def _p_better(fitted: FittedModel, reference: FittedModel) -> float:
     return float(stats.t.cdf(projection / math.sqrt(var), batches - 1))
 
 
+def _indistinguishable(
+    best: FittedModel, other: FittedModel, nominal: FittedModel, settings: AttributionSettings
+) -> bool:
+    """Whether the held-out data cannot tell ``other`` (a significant runner-up) from ``best``.
+
+    Either their penalised held-out scores are within ``ambiguity`` of the
+    nominal model's excess χ², or the change ``best`` predicts over ``other``
+    is not found in the held-out data at the ``significance`` level (the
+    matched-filter test of :func:`_p_better` with ``other`` as the reference):
+    a lower score that the noise could have made is no reason to prefer one
+    explanation (e.g. an accelerometer bias b and a scale error s ≈ b/g, whose
+    predictions differ only by s times the dynamic acceleration).
+    """
+    if not other.significant:
+        return False
+    excess = max(nominal.test_chi2 - best.test_chi2, 1e-12)
+    if other.score - best.score < settings.ambiguity * excess:
+        return True
+    return _p_better(best, other) < settings.significance
+
+
 def _decorrelation_lag(x: FloatArray, segment: NDArray[np.int_], max_lag: int = 500) -> int:
     """The first lag at which the autocorrelation of x (taken inside equal-``segment`` runs) is below 0.05."""
     gamma0 = float(np.dot(x, x))
@@ -807,11 +831,8 @@ def attribute(
             explained = best.effects
         else:
             kind = "not_explained"
-        excess = max(nominal.test_chi2 - best.test_chi2, 1e-12)
         indistinguishable = [
-            m.name
-            for m in ranking
-            if m is not best and m.significant and (m.score - best.score) < settings.ambiguity * excess
+            m.name for m in ranking if m is not best and _indistinguishable(best, m, nominal, settings)
         ]
     if kind == "no_gap":
         verdict = "no significant gap"
