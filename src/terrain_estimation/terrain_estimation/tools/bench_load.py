@@ -18,7 +18,11 @@ seed). Rows:
     node sustains) and open loop at 20× real time;
 (d) N = 1, 5, 10 quarter cars in one host process at 1× real time, and the
     ten spread over two host processes (one Python process runs its callbacks
-    on one core at a time).
+    on one core at a time);
+(e) the skid-steer and rover estimators on their recorded bags
+    (:data:`BAG_OF`), as fast as the node takes them and at 20× real time
+    (events executor; the expected estimates and the flow-control window, two
+    estimate periods at least, come from the same bag run offline).
 
 Figures per row:
 
@@ -106,6 +110,12 @@ __all__ = [
 
 BAGS_DIR = Path(__file__).resolve().parents[4] / "bags"
 BAG = "quarter_car_graneville_iso_d_10ms"
+BAG_OF: dict[str, str] = {
+    "quarter_car": BAG,
+    "skid_steer": "skid_steer_s_shape",
+    "rover": "rover_terrain_1",
+}
+"""The recorded bag each vehicle's bag rows replay (``bags/``)."""
 EXECUTORS: tuple[str, ...] = ("single", "drain", "events")
 DRAIN_LIMIT = 10
 """At most this many queued messages taken by one callback (other subscriptions get their turn)."""
@@ -140,6 +150,8 @@ class Case:
         sensor_depth: sensor queue depth on both sides; 0: the project's
             :data:`~terrain_estimation.ros.qos.SENSOR_DEPTH`.
         processes: host processes the vehicles are spread over (CPU: their sum).
+        vehicle: the estimator (``quarter_car``, or for ``"bag"`` rows also
+            ``skid_steer`` and ``rover``, replaying :data:`BAG_OF`).
     """
 
     label: str
@@ -151,6 +163,7 @@ class Case:
     executor: str = "single"
     sensor_depth: int = 0
     processes: int = 1
+    vehicle: str = "quarter_car"
 
 
 def cases(quick: bool = False) -> list[Case]:
@@ -170,6 +183,12 @@ def cases(quick: bool = False) -> list[Case]:
         Case(f"(d) N={fleet[1]} 1x events", fleet[1], "sim", 1.0, d, executor="events"),
         *(Case(f"(d) N={fleet[-1]} 1x {ex}", fleet[-1], "sim", 1.0, d, executor=ex) for ex in EXECUTORS[1:]),
         Case(f"(d) N={fleet[-1]} 1x events, 2 processes", fleet[-1], "sim", 1.0, d, executor="events", processes=2),
+        # The other estimators on their recorded bags (events executor, the fastest above).
+        *(
+            Case(f"(e) {v} bag {'max' if x == 0 else f'{x:g}x'} events", 1, "bag", x, 0.0, executor="events", vehicle=v)
+            for v in ("skid_steer", "rover")
+            for x in (0.0, 20.0)
+        ),
     ]
     if quick:  # the drain executor once (bag max): every host start costs seconds
         rows = [c for c in rows if c.executor != "drain" or c.label.startswith("(c) bag max")]
@@ -219,12 +238,16 @@ def simulated_inputs(k: int, duration: float, sensor_rate: float, seed: int = 70
     return out
 
 
-def bag_inputs(path: Path, namespace: str = "/quarter_car", into: str = "/v0") -> list[tuple[str, Any]]:
-    """The bag's sensor messages ``(relative topic, msg)`` in log order (estimator inputs only), their
-    frames moved from the bag's ``namespace`` into ``into`` (the nodes check the frames)."""
+def bag_inputs(
+    path: Path,
+    namespace: str = "/quarter_car",
+    into: str = "/v0",
+    inputs: frozenset[str] = frozenset({"imu/body", "imu/wheel", "joint_states", "terrain/profile"}),
+) -> list[tuple[str, Any]]:
+    """The bag's sensor messages ``(relative topic, msg)`` in log order (the estimator's ``inputs``
+    only), their frames moved from the bag's ``namespace`` into ``into`` (the nodes check the frames)."""
     from terrain_estimation.bag import read_bag
 
-    inputs = {"imu/body", "imu/wheel", "joint_states", "terrain/profile"}
     prefix = namespace.rstrip("/") + "/"
     frame_from, frame_to = namespace.strip("/") + "/", into.strip("/") + "/"
     out = []
@@ -235,6 +258,16 @@ def bag_inputs(path: Path, namespace: str = "/quarter_car", into: str = "/v0") -
                 header.frame_id = frame_to + header.frame_id[len(frame_from) :]
             out.append((item.topic[len(prefix) :], item.msg))
     return out
+
+
+def _offline_estimates(bag: Path, vehicle: str, topic: str) -> tuple[int, float]:
+    """(estimates on ``topic``, their median period in s) of the bag run offline through the same adapter."""
+    from terrain_estimation.tools.estimate import estimate_bag
+
+    stamps = np.array([_stamp_ns(m) for m in estimate_bag(bag, vehicle).messages(topic)], dtype=float)
+    if stamps.size < 2:
+        raise RuntimeError(f"bench: {bag} gives {stamps.size} estimates on {topic} offline")
+    return int(stamps.size), float(np.median(np.diff(stamps))) * 1e-9
 
 
 def expected_estimates(stream: Sequence[tuple[str, Any]], filter_rate: float = 100.0) -> int:
@@ -312,7 +345,8 @@ def sensor_qos(depth: int) -> Any:
 
 
 def host_main(spec: dict[str, Any]) -> int:
-    """Run ``spec["vehicles"]`` quarter-car estimator nodes under ``/v0``… in one executor.
+    """Run ``spec["vehicles"]`` estimator nodes of ``spec["vehicle"]`` (quarter car by default) under
+    ``/v0``… in one executor.
 
     Protocol on stdin/stdout: prints ``ready`` once the nodes exist; ``start`` (a line on
     stdin) starts the CPU count; ``stop`` ends the run (after the messages still queued are
@@ -338,7 +372,7 @@ def host_main(spec: dict[str, Any]) -> int:
     rclpy.init(context=context)
     first = int(spec.get("first", 0))
     nodes = [
-        make_estimator_node("quarter_car", namespace=namespace_of(k), context=context)
+        make_estimator_node(spec.get("vehicle", "quarter_car"), namespace=namespace_of(k), context=context)
         for k in range(first, first + spec["vehicles"])
     ]
     executor_kind = spec["executor"]
@@ -396,13 +430,23 @@ def host_main(spec: dict[str, Any]) -> int:
 class _Host:
     """The host subprocess, driven over its stdin/stdout."""
 
-    def __init__(self, vehicles: int, executor: str, sensor_depth: int = 0, first: int = 0) -> None:
+    def __init__(
+        self, vehicles: int, executor: str, sensor_depth: int = 0, first: int = 0, vehicle: str = "quarter_car"
+    ) -> None:
         # The nodes' log (silent-input warnings once the player stops, …): shown only if the host fails.
         self.log = tempfile.TemporaryFile(mode="w+")
         env = dict(os.environ)
         env.setdefault("OPENBLAS_NUM_THREADS", "1")
         env.setdefault("OMP_NUM_THREADS", "1")
-        spec = json.dumps({"vehicles": vehicles, "executor": executor, "sensor_depth": sensor_depth, "first": first})
+        spec = json.dumps(
+            {
+                "vehicles": vehicles,
+                "executor": executor,
+                "sensor_depth": sensor_depth,
+                "first": first,
+                "vehicle": vehicle,
+            }
+        )
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "terrain_estimation.tools.bench_load", "--host", spec],
             stdin=subprocess.PIPE,
@@ -450,30 +494,42 @@ class _Host:
 def run_case(case: Case, bags_dir: Path = BAGS_DIR) -> dict[str, Any]:
     """Run one row: start the host, publish, collect, and return its figures."""
     import rclpy
-    from geometry_msgs.msg import PointStamped
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
-    from sensor_msgs.msg import Imu, JointState
 
     from terrain_estimation.ros.qos import ESTIMATE_QOS
-    from terrain_msgs.msg import SoilStiffness
+    from terrain_estimation.tools.estimate import topic_name
+    from terrain_estimation.vehicles import estimator_parameters, get_vehicle
 
+    entry = get_vehicle(case.vehicle)
+    adapter = entry.make_adapter(estimator_parameters(entry), namespace_of(0))
+    types = {spec.topic: spec.msg_type for spec in adapter.inputs}
+    estimate = next(spec for spec in adapter.outputs if spec.kind == "estimate")  # the first: the one timed
+    flow_window = FLOW_WINDOW_S
     if case.source == "bag":
-        streams = [bag_inputs(bags_dir / BAG)]
+        bag = bags_dir / BAG_OF[case.vehicle]
+        streams = [bag_inputs(bag, entry.namespace, inputs=frozenset(types))]
+        if case.vehicle == "quarter_car":
+            expected = expected_estimates(streams[0])
+        else:  # what the same adapter publishes offline (``terrain-estimate``), and at what period
+            expected, period = _offline_estimates(bag, case.vehicle, topic_name(entry.namespace, estimate.topic))
+            flow_window = max(FLOW_WINDOW_S, 2.0 * period)
     else:
+        if case.vehicle != "quarter_car":
+            raise ValueError(f"bench row {case.label!r}: simulated drives are quarter cars only, not {case.vehicle}")
         streams = [simulated_inputs(k, case.duration, case.sensor_rate) for k in range(case.vehicles)]
+        expected = sum(expected_estimates(stream) for stream in streams)
     # One time-ordered stream over every vehicle: (stamp ns, vehicle, index, topic, msg).
     merged = sorted(
         (_stamp_ns(msg), k, i, topic, msg) for k, stream in enumerate(streams) for i, (topic, msg) in enumerate(stream)
     )
     stamp0 = merged[0][0]
     sim_s = (merged[-1][0] - stamp0) * 1e-9
-    types = {"imu/body": Imu, "imu/wheel": Imu, "joint_states": JointState, "terrain/profile": PointStamped}
 
     per_host = -(-case.vehicles // case.processes)
     hosts = [
-        _Host(min(per_host, case.vehicles - first), case.executor, case.sensor_depth, first)
+        _Host(min(per_host, case.vehicles - first), case.executor, case.sensor_depth, first, case.vehicle)
         for first in range(0, case.vehicles, per_host)
     ]
     context = Context()
@@ -487,7 +543,6 @@ def run_case(case: Case, bags_dir: Path = BAGS_DIR) -> dict[str, Any]:
     }
     lock = threading.Lock()
     estimates: list[tuple[int, int, int, str]] = []  # vehicle, stamp ns, source timestamp ns, frame
-    expected = sum(expected_estimates(stream) for stream in streams)
     last_estimate = [stamp0] * case.vehicles
     last_arrival = [time.monotonic()]
 
@@ -503,7 +558,9 @@ def run_case(case: Case, bags_dir: Path = BAGS_DIR) -> dict[str, Any]:
         return callback
 
     subscriptions = [
-        collector.create_subscription(SoilStiffness, f"{namespace_of(k)}/soil_stiffness", collect(k), ESTIMATE_QOS)
+        collector.create_subscription(
+            estimate.msg_type, f"{namespace_of(k)}/{estimate.topic}", collect(k), ESTIMATE_QOS
+        )
         for k in range(case.vehicles)
     ]
     executor = SingleThreadedExecutor(context=context)
@@ -539,7 +596,7 @@ def run_case(case: Case, bags_dir: Path = BAGS_DIR) -> dict[str, Any]:
                 if wait > 0:
                     time.sleep(wait)
             else:
-                while (stamp - last_estimate[k]) * 1e-9 > FLOW_WINDOW_S:
+                while (stamp - last_estimate[k]) * 1e-9 > flow_window:
                     if time.monotonic() - last_arrival[0] > 10.0:
                         raise RuntimeError("flow-controlled replay: no estimate for 10 s")
                     time.sleep(0.0002)
@@ -569,7 +626,7 @@ def run_case(case: Case, bags_dir: Path = BAGS_DIR) -> dict[str, Any]:
     last_source_ns = max((source for _, _, source, _ in got), default=0)
     first_pub_ns = min(published_at.values())
     wall_s = max((last_source_ns - first_pub_ns) * 1e-9, t_published - t_start)
-    foreign = sum(1 for k, _, _, frame in got if frame != f"v{k}/base_link")
+    foreign = sum(1 for k, _, _, frame in got if not frame.startswith(f"v{k}/"))
     published = len(merged)
     consumed = sum(sum(r["handled"]) for r in reports)
     cpu_s = sum(r["cpu_s"] for r in reports)
@@ -666,7 +723,10 @@ def _verdicts(rows: Sequence[dict[str, Any]]) -> list[str]:
     """One line per target, computed from the figures."""
     out = []
     for r in rows:
-        if r["row"].startswith(("(b)", "(c) bag 20x", "(d)")):
+        case = r["case"]
+        if r["row"].startswith("(a)"):
+            continue
+        if case["factor"] > 0:  # paced (simulated drives at 1x, bag replays at 20x): did the node follow?
             behind = r["x_real_time"] < 0.9 * r["offered_x_real_time"]
             if r["dropped"]:
                 verdict = "did not keep up: dropped input"
@@ -681,7 +741,7 @@ def _verdicts(rows: Sequence[dict[str, Any]]) -> list[str]:
                 f"{r['x_real_time']:.2f}x achieved of {r['offered_x_real_time']:.1f}x offered, "
                 f"latency p99 {r['latency_p99_ms']:.0f} ms)"
             )
-        elif r["row"].startswith("(c) bag max"):
+        else:  # as fast as the node takes it
             out.append(
                 f"- {r['row']}: sustained {r['x_real_time']:.2f}x real time, {r['dropped']} dropped, "
                 f"{r['estimates']} of {r['expected_estimates']} estimates"
@@ -689,21 +749,24 @@ def _verdicts(rows: Sequence[dict[str, Any]]) -> list[str]:
     return out
 
 
-def offline_ceiling(bags_dir: Path, repeats: int) -> dict[str, Any]:
-    """The same bag through the adapter and filter without ROS (``terrain-estimate``'s runner): the
-    speed no executor can beat in one process."""
+def offline_ceiling(bags_dir: Path, repeats: int, vehicle: str = "quarter_car") -> dict[str, Any]:
+    """The vehicle's bag (:data:`BAG_OF`) through the adapter and filter without ROS
+    (``terrain-estimate``'s runner): the speed no executor can beat in one process."""
     from terrain_estimation.tools.bench import bench_bag
 
-    row = bench_bag(bags_dir / BAG, "quarter_car", repeats)
+    row = bench_bag(bags_dir / BAG_OF[vehicle], vehicle, repeats)
     row["cpu_per_sim_s"] = 1.0 / row["x_real_time"]
     return row
 
 
 def _ceiling_line(c: dict[str, Any]) -> str:
-    return (
-        f"offline ceiling (bag through adapter and filter, no ROS, one core): {c['x_real_time']:.2f}x real time, "
-        f"{c['cpu_per_sim_s']:.3f} CPU s per sim s, {c['us_per_step']:.0f} us per filter step"
+    line = (
+        f"offline ceiling, {c['vehicle']} (bag through adapter and filter, no ROS, one core): "
+        f"{c['x_real_time']:.2f}x real time, {c['cpu_per_sim_s']:.3f} CPU s per sim s"
     )
+    if c["vehicle"] == "quarter_car":  # one estimate per filter step
+        line += f", {c['us_per_step']:.0f} us per filter step"
+    return line
 
 
 QOS_TEXT = """\
@@ -731,7 +794,11 @@ QOS_TEXT = """\
 
 
 def format_markdown(
-    rows: Sequence[dict[str, Any]], ceiling: dict[str, Any], machine: dict[str, Any], command: str, quick: bool
+    rows: Sequence[dict[str, Any]],
+    ceilings: dict[str, dict[str, Any]],
+    machine: dict[str, Any],
+    command: str,
+    quick: bool,
 ) -> str:
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     lines = [
@@ -742,10 +809,11 @@ def format_markdown(
         f"Python {machine['python']}, RMW {machine['rmw']}, OPENBLAS_NUM_THREADS={machine['OPENBLAS_NUM_THREADS']}."
         + (" **Quick run** (short drives): not the figures to quote." if quick else ""),
         "",
-        "Estimator nodes (the project's `EstimatorNode`, quarter car, SCKF) run in a host process of their own,",
-        "fed over DDS from a player process; each vehicle under its own namespace `/vK` with its own soil,",
-        "road and noise seeds. Latency: publication of the last sensor message of an instant to publication",
-        "of its estimate (middleware source timestamp). Dropped: sensor messages published minus consumed by",
+        "Estimator nodes (the project's `EstimatorNode`: quarter car, SCKF, in rows (a)-(d); skid steer and rover",
+        "in (e)) run in a host process of their own, fed over DDS from a player process; each vehicle under its",
+        "own namespace `/vK` with its own soil, road and noise seeds. Latency: publication of the last sensor",
+        "message of an instant to publication of its estimate (middleware source timestamp; the skid steer's",
+        "`odom`, the rover's `wheel_terrain`). Dropped: sensor messages published minus consumed by",
         "the nodes. CPU: host-process CPU seconds per vehicle per simulated second (player: the publishing",
         "process's own, to show it was not the bottleneck). Offered/achieved x:",
         "simulated over wall seconds of the publication and of the estimates. No figure here is asserted",
@@ -757,7 +825,7 @@ def format_markdown(
         "",
         *_verdicts(rows),
         "",
-        "- " + _ceiling_line(ceiling),
+        *("- " + _ceiling_line(c) for c in ceilings.values()),
         "",
         "## QoS and queue choices",
         "",
@@ -789,22 +857,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         row = run_case(case, Path(args.bags))
         rows.append(row)
         print(format_table([row]).splitlines()[1], flush=True)
-    ceiling = offline_ceiling(Path(args.bags), 1 if args.quick else 3)
+    ceilings = {
+        v: offline_ceiling(Path(args.bags), 1 if args.quick else 3, v)
+        for v in dict.fromkeys(["quarter_car", *(c.vehicle for c in selected)])
+    }
     machine = machine_info()
     print()
     print(f"machine: {machine['cpu_count']} CPUs, load average {machine['load_avg_1min']}, {machine['platform']}")
     print(format_table(rows))
     for line in _verdicts(rows):
         print(line)
-    print(_ceiling_line(ceiling))
+    for ceiling in ceilings.values():
+        print(_ceiling_line(ceiling))
     command = "python -m terrain_estimation.tools.bench_load" + (" --quick" if args.quick else "")
     if args.out:
         command += f" --out {args.out}"
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(format_markdown(rows, ceiling, machine, command, args.quick))
+        Path(args.out).write_text(format_markdown(rows, ceilings, machine, command, args.quick))
     if args.json:
         Path(args.json).write_text(
-            json.dumps({"machine": machine, "rows": rows, "offline_ceiling": ceiling}, indent=2) + "\n"
+            json.dumps({"machine": machine, "rows": rows, "offline_ceiling": ceilings}, indent=2) + "\n"
         )
     return 0
 
