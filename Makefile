@@ -30,7 +30,7 @@ export OMP_NUM_THREADS ?= 1
 
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc reproduce-skid reproduce-rover bench bench-load property-long bags clean distclean constraints validate-sim2real sim2real-real-data
+.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc reproduce-skid reproduce-rover bench bench-load property-long bags clean distclean constraints validate-sim2real validate-sim2real-seed2027 sim2real-real-data
 
 setup: $(PKGS_STAMP)
 
@@ -96,6 +96,12 @@ REAL_DATA  ?= ../shared/real_data
 validate-sim2real: setup
 	$(PY) -m terrain_estimation.tools.validate_sim2real --out out/sim2real_validation --per-effect $(PER_EFFECT) --controls $(CONTROLS) \
 		--jobs 2 --report docs/results/sim2real/validation.md
+	$(PY) -m terrain_estimation.tools.sim2real_results
+
+# The same with another seed: a second suite, drawn after the diagnosis was developed on the first.
+validate-sim2real-seed2027: setup
+	$(PY) -m terrain_estimation.tools.validate_sim2real --out out/sim2real_validation_seed2027 --per-effect $(PER_EFFECT) \
+		--controls $(CONTROLS) --seed 2027 --jobs 2 --report docs/results/sim2real/validation_seed2027.md
 	$(PY) -m terrain_estimation.tools.sim2real_results
 
 sim2real-real-data: setup

@@ -4,7 +4,9 @@ The sections are written by their own commands (each a make target), so that
 a long run never has to be repeated to refresh another part:
 
 * ``make validate-sim2real`` → ``docs/results/sim2real/validation.md``
-  (:mod:`terrain_estimation.tools.validate_sim2real`);
+  (:mod:`terrain_estimation.tools.validate_sim2real`), and
+  ``make validate-sim2real-seed2027`` → ``docs/results/sim2real/validation_seed2027.md``
+  (the same on a second suite);
 * ``make sim2real-real-data`` → ``docs/results/sim2real/cmu/single_wheel.md``
   (:mod:`terrain_estimation.sim2real.single_wheel`) and
   ``docs/results/sim2real/husky/husky.md`` (:mod:`terrain_estimation.sim2real.husky`).
@@ -25,6 +27,7 @@ __all__ = ["SECTIONS", "assemble", "main"]
 
 SECTIONS = (
     ("validation.md", "make validate-sim2real"),
+    ("validation_seed2027.md", "make validate-sim2real-seed2027"),
     ("cmu/single_wheel.md", "make sim2real-real-data"),
     ("husky/husky.md", "make sim2real-real-data"),
 )
