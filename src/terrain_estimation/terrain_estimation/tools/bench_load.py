@@ -721,8 +721,24 @@ def machine_info() -> dict[str, Any]:
     }
 
 
-def _verdicts(rows: Sequence[dict[str, Any]]) -> list[str]:
-    """One line per target, computed from the figures."""
+def _cpu_demand(r: dict[str, Any], cpus: int | None) -> str:
+    """What the offered rate asks of the CPUs, from the row's CPU per simulated second (a lower bound
+    where input was dropped: the nodes spent nothing on what they never took)."""
+    processes = int(r["case"].get("processes", 1))
+    per_process = r["cpu_per_vehicle_per_sim_s"] * r["vehicles"] / processes * r["offered_x_real_time"]
+    total = per_process * processes + r["player_cpu_per_sim_s"] * r["offered_x_real_time"]
+    if per_process < 0.8 and (cpus is None or total < 0.8 * cpus):
+        return ""
+    at_least = "at least " if r["dropped"] else ""
+    text = f"; the offered rate needs {at_least}{per_process:.2f} CPU s per wall s in each estimator process"
+    text += " (its Python callbacks run on one core at a time)"
+    if cpus is not None:
+        text += f", {total:.2f} with the player, on {cpus} CPUs"
+    return text
+
+
+def _verdicts(rows: Sequence[dict[str, Any]], cpus: int | None = None) -> list[str]:
+    """One line per target, computed from the figures (``cpus``: the machine's, for the CPU demand)."""
     out = []
     for r in rows:
         case = r["case"]
@@ -741,7 +757,7 @@ def _verdicts(rows: Sequence[dict[str, Any]]) -> list[str]:
             out.append(
                 f"- {r['row']}: {verdict} ({r['dropped']} of {r['published']} sensor messages dropped, "
                 f"{r['x_real_time']:.2f}x achieved of {r['offered_x_real_time']:.1f}x offered, "
-                f"latency p99 {r['latency_p99_ms']:.0f} ms)"
+                f"latency p99 {r['latency_p99_ms']:.0f} ms){_cpu_demand(r, cpus)}"
             )
         else:  # as fast as the node takes it
             out.append(
@@ -825,7 +841,7 @@ def format_markdown(
         "",
         "## Targets (computed from the table)",
         "",
-        *_verdicts(rows),
+        *_verdicts(rows, machine["cpu_count"]),
         "",
         *("- " + _ceiling_line(c) for c in ceilings.values()),
         "",
@@ -867,7 +883,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print()
     print(f"machine: {machine['cpu_count']} CPUs, load average {machine['load_avg_1min']}, {machine['platform']}")
     print(format_table(rows))
-    for line in _verdicts(rows):
+    for line in _verdicts(rows, machine["cpu_count"]):
         print(line)
     for ceiling in ceilings.values():
         print(_ceiling_line(ceiling))
