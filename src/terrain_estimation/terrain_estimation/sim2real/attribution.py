@@ -72,7 +72,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize, stats
 
-from terrain_estimation.sim2real.model import Candidate, FitParameter, ReplayModel
+from terrain_estimation.sim2real.model import Candidate, FitParameter, ReplayModel, usable_mask
 from terrain_estimation.sim2real.where import ChannelReport, WhereSettings, _channel, _jsonable
 
 __all__ = [
@@ -262,13 +262,14 @@ class AttributionReport:
 def held_out_mask(
     model: ReplayModel, settings: AttributionSettings
 ) -> tuple[dict[str, BoolArray], dict[str, BoolArray]]:
-    """(train, test) masks per channel: interleaved blocks after the warm-up."""
+    """(train, test) masks per channel: interleaved blocks after the warm-up, inside the model's
+    domain (:func:`~terrain_estimation.sim2real.model.usable_mask`)."""
     t0 = min(float(model.times[c.name][0]) for c in model.channels)
     train: dict[str, BoolArray] = {}
     test: dict[str, BoolArray] = {}
     for ch in model.channels:
         t = np.asarray(model.times[ch.name], dtype=float)
-        use = t >= t0 + model.warmup
+        use = usable_mask(model, ch.name, t0)
         block = np.floor((t - t0 - model.warmup) / settings.block).astype(int)
         is_test = (block % settings.test_every) == settings.test_every - 1
         train[ch.name] = use & ~is_test
@@ -721,7 +722,7 @@ def attribute(
     if test_mask is not None:
         t0 = min(float(model.times[c.name][0]) for c in model.channels)
         for ch in model.channels:
-            use = np.asarray(model.times[ch.name], dtype=float) >= t0 + model.warmup
+            use = usable_mask(model, ch.name, t0)
             held = np.asarray(test_mask[ch.name], dtype=bool)
             test[ch.name] = use & held
             train[ch.name] = use & ~held

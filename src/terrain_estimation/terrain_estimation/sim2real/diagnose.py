@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from scipy import stats
 
 from terrain_estimation.sim2real.attribution import AttributionReport, AttributionSettings, attribute
-from terrain_estimation.sim2real.model import ReplayModel
+from terrain_estimation.sim2real.model import ReplayModel, usable_mask
 from terrain_estimation.sim2real.where import (
     ChannelReport,
     NisReport,
@@ -146,10 +146,10 @@ def where_table(model: ReplayModel, prediction: Mapping[str, FloatArray], where:
     sigma = {c.name: float(c.noise_std) for c in model.channels}
     ref = model.channels[0].name
     t_ref = np.asarray(model.times[ref], dtype=float)
-    t_ref = t_ref[t_ref >= start]
+    t_ref = t_ref[usable_mask(model, ref, t0)]
     for ch in model.channels:
         t = np.asarray(model.times[ch.name], dtype=float)
-        sel = t >= start
+        sel = usable_mask(model, ch.name, t0)
         meas = np.asarray(model.measured[ch.name], dtype=float)[sel]
         sim = np.asarray(prediction[ch.name], dtype=float)[sel]
         if meas.size < 8:

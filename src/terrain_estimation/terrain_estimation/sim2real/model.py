@@ -180,6 +180,14 @@ class ReplayModel(Protocol):
         ...
 
 
+# Optional attribute of a replay model, used when present:
+#
+#     valid: Mapping[str, BoolArray]
+#
+# per channel, the samples inside the model's domain (same shape as times[name]);
+# the others (e.g. a rover sliding backward, outside a quasi-static replay) are
+# left out of every fit, score and where-test, like the warm-up (usable_mask).
+#
 # Optional method of a replay model, used when present:
 #
 #     def noise_std_for(self, effects, nuisance) -> dict[str, float]
@@ -188,6 +196,17 @@ class ReplayModel(Protocol):
 # feeds an input's noise through to a channel, e.g. a damper on the measured
 # road rate). The engine fits with the fixed ``Channel.noise_std`` and uses
 # this only in the noise tests ("no significant gap", "explained").
+
+
+def usable_mask(model: Any, name: str, t0: float) -> NDArray[np.bool_]:
+    """Samples of channel ``name`` that fits, scores and where-tests use: after the warm-up
+    (``t0 + model.warmup``) and inside the model's domain (its optional ``valid`` masks)."""
+    t = np.asarray(model.times[name], dtype=float)
+    use: NDArray[np.bool_] = t >= t0 + float(model.warmup)
+    valid = getattr(model, "valid", None)
+    if valid is not None and name in valid:
+        use = use & np.asarray(valid[name], dtype=bool)
+    return use
 
 
 def candidates_from_catalogue(
