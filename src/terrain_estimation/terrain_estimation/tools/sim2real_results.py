@@ -62,8 +62,12 @@ vehicle's config, nothing else) and answers three questions:
 
 The verdict is "no significant gap", "explained by X (shrinks the gap by N %)"
 or "not explained by the catalogue (best candidate X leaves N % unexplained)"
-(with the reason when X's held-out improvement is not significant).
-The engine is generic (`terrain_estimation.sim2real.attribution`); each
+(with the reason when X's held-out improvement is not significant, or when
+X's held-out residual still fails a noise test). A significant runner-up the
+held-out data cannot tell from X is named as indistinguishable on that bag.
+Samples outside a replay model's domain (a rover sliding backward, beyond
+the quasi-static replay) are left out of every fit, score and test, with a
+note in the report. The engine is generic (`terrain_estimation.sim2real.attribution`); each
 vehicle provides a replay model (`terrain_estimation.sim2real.<vehicle>`).
 """
 

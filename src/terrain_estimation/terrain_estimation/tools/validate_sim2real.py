@@ -57,6 +57,8 @@ __all__ = [
 
 DEFAULT_SEED = 2026
 """Seed of the suite of ``make validate-sim2real`` (``make validate-sim2real-seed2027``: a second suite)."""
+MAKE_TARGETS = {DEFAULT_SEED: "make validate-sim2real", 2027: "make validate-sim2real-seed2027"}
+"""The make target that runs the validation of a suite seed (named in the report)."""
 
 TARGETS = {
     "top1": 0.90,
@@ -564,7 +566,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     results = diagnose_suite(suite, out / "diagnoses", args.jobs, vehicles, reuse=args.reuse)
     scores = score(suite, results)
     context = {
-        "command": "make validate-sim2real",
+        "command": MAKE_TARGETS.get(
+            args.seed, f"python -m terrain_estimation.tools.validate_sim2real --seed {args.seed}"
+        ),
         "date": time.strftime("%Y-%m-%d"),
         "wall": time.monotonic() - started,
         "jobs": args.jobs,
