@@ -322,6 +322,17 @@ def test_the_gravity_window_sums_as_float64_arrays_do() -> None:
         assert window.mean_norm() == expected
 
 
+def test_the_gravity_window_of_huge_readings_is_infinite_without_an_overflow_warning() -> None:
+    import warnings
+
+    window = validation._GravityWindow(0.5)
+    for k in range(60):
+        window.add(0.01 * k, (1e200, 0.0, 1e200))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert window.mean_norm() == math.inf
+
+
 def test_accelerations_in_g_are_still_rejected_once_with_a_restart() -> None:
     guard, specs = _guard()
     spec = specs["imu"]

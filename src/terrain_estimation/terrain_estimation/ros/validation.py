@@ -328,7 +328,10 @@ class _GravityWindow:
             return None
         if self.samples[-1][0] - self.samples[0][0] < 0.5 * self.window_s:
             return None
-        mean = np.array(self.total) / len(self.samples)
+        n = len(self.samples)
+        if max(map(abs, self.total)) > 1e150 * n:  # |mean|² would overflow (fuzzed input): what it gave, unwarned
+            return math.inf
+        mean = np.array(self.total) / n
         return math.sqrt(float(mean.dot(mean)))  # what np.linalg.norm computes, without its overhead
 
 
