@@ -234,3 +234,51 @@ def test_an_stukf_needs_sideslip_and_finite_measurement():
     AdaptiveStrongTrackingUKF(variant="stukf").step(STATE, Z, NoSideslip(MODEL), U, DT)
     with pytest.raises(ValueError):
         AdaptiveStrongTrackingUKF().step(STATE, np.array([0.0, np.nan, 0.0]), MODEL, U, DT)
+
+
+class _CountingModel:
+    """The observer model, counting its ``h`` evaluations."""
+
+    def __init__(self, inner: SkidSteerObserverModel) -> None:
+        self.inner = inner
+        self.h_calls = 0
+
+    def __getattr__(self, name: str):
+        return getattr(self.inner, name)
+
+    def h(self, x, u):
+        self.h_calls += 1
+        return self.inner.h(x, u)
+
+
+@pytest.mark.parametrize("variant", ["stukf", "an_stukf"])
+def test_without_fading_the_update_reuses_the_moments_it_has(variant):
+    """λ = 1: the update's points are the ones the fading factor was computed from, so ``h`` runs
+    once per step and the posterior is exactly that of a fresh update."""
+    ukf = UnscentedKalmanFilter()
+    filt = AdaptiveStrongTrackingUKF(variant=variant, ukf=ukf)
+    model = _CountingModel(MODEL)
+    post, res = filt.step(STATE, Z, model, U, DT, memory=None)
+    assert res.fading_factor == 1.0
+    assert model.h_calls == 1
+    # The reference: the same prediction, then an update that redraws the points.
+    pred = ukf.propagate(STATE, MODEL, U, DT, process_noise_sqrt=MODEL.process_noise_sqrt(STATE.x, U, DT))
+    rs = MODEL.measurement_noise_sqrt()
+    if variant == "an_stukf":
+        noise = adapt_noise_sqrt(
+            MODEL.process_noise_sqrt(STATE.x, U, DT), rs, tire_sideslips(pred.x, MODEL.params), k_q=5.0, k_r=2.0
+        )
+        lq, rs = noise.process_noise_sqrt, noise.measurement_noise_sqrt
+        pred = dataclasses.replace(pred, Q=lq @ lq.T)
+    ref, info = ukf.update(pred.state(), Z, MODEL, U, measurement_noise_sqrt=rs)
+    np.testing.assert_array_equal(post.x, ref.x)
+    np.testing.assert_array_equal(post.P, ref.P)
+    assert res.nis == info.nis
+    # With fading, the update draws new points from the inflated covariance: h runs twice.
+    model.h_calls = 0
+    cfg = StrongTrackingConfig(gamma_th=None)
+    _, res = AdaptiveStrongTrackingUKF(variant=variant, ukf=ukf, strong_tracking=cfg).step(
+        STATE, Z + np.array([1.0, -0.8, 0.05]), model, U, DT, memory=0.5 * np.eye(3)
+    )
+    assert res.fading_factor > 1.0
+    assert model.h_calls == 2

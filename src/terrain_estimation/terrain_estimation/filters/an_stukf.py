@@ -211,8 +211,10 @@ class AdaptiveStrongTrackingUKF:
         lam, V = suboptimal_fading_factor(
             zv - mm.z_hat, mm.P_zz, mm.P_xz, prior.P, mm.R, pred.Q, memory, self.strong_tracking
         )
-        inflated = prior if lam == 1.0 else pred.state(lam)
-        post, info = self.ukf.update(inflated, zv, model, u, measurement_noise_sqrt=Rs)
+        if lam == 1.0:  # no inflation: the update's points and moments are the ones just computed
+            post, info = self.ukf.update(prior, zv, model, u, moments=mm)
+        else:
+            post, info = self.ukf.update(pred.state(lam), zv, model, u, measurement_noise_sqrt=Rs)
         return post, AnStukfResult(
             fading_factor=float(lam),
             noise_scale=float(noise_scale),
