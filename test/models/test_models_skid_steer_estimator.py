@@ -136,6 +136,22 @@ def test_outputs_match_the_message_fields_and_definitions():
     straight = [e for e, _ in out if 1.0 < e.t < 2.0]
     assert not any(e.icr_valid for e in straight)
     assert all(e.icr_x == 0.0 and e.icr_y == 0.0 for e in straight)
+    # The messages: the 3x3 covariance in rows/columns 0, 1, 5 of the twist's 6x6, the rest 0.
+    from terrain_estimation.ros.skid_steer import estimate_to_odom_msg, estimate_to_state_msg
+
+    odom = estimate_to_odom_msg(e, "v/odom", "v/base_link")
+    twist_cov = np.asarray(odom.twist.covariance).reshape(6, 6)
+    expected = np.zeros((6, 6))
+    expected[np.ix_([0, 1, 5], [0, 1, 5])] = cov
+    np.testing.assert_array_equal(twist_cov, expected)
+    assert (odom.twist.twist.linear.x, odom.twist.twist.linear.y, odom.twist.twist.angular.z) == (
+        e.vx,
+        e.vy,
+        e.yaw_rate,
+    )
+    assert odom.pose.covariance[0] == -1.0 and not np.asarray(odom.pose.covariance)[1:].any()
+    state = estimate_to_state_msg(e, "v/base_link")
+    assert tuple(state.tire_sideslip) == e.tire_sideslip and state.header.frame_id == "v/base_link"
 
 
 def test_dead_reckoning_follows_the_true_path():

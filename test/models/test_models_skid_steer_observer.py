@@ -275,3 +275,44 @@ def test_derived_outputs():
     assert tire_sideslips(np.tile(x, (4, 1)), P).shape == (4, 6)
     with pytest.raises(ValueError, match="shape"):
         derived_outputs(np.zeros(4), wl, wr, P)
+
+
+def _random_cases(n: int = 200, seed: int = 3):
+    """Random states (m, 3) and inputs over driving, braking, reversing, standstill, wheel lift-off."""
+    rng = np.random.default_rng(seed)
+    for k in range(n):
+        x = rng.normal([1.0, 0.0, 0.0], [2.0, 0.3, 0.8], size=(7, 3))
+        wl, wr = rng.normal(0.0, 8.0, size=2) if k % 5 else (0.0, 0.0)
+        ax, ay = rng.normal(0.0, 3.0 if k % 7 else 40.0, size=2)  # large: some loads floored at 0
+        friction = None if k % 2 else float(rng.uniform(0.2, 1.0))
+        yield x, SkidSteerInput(float(wl), float(wr), float(ax), float(ay), friction)
+
+
+def test_the_fused_forces_are_the_shared_models_composition_bit_for_bit():
+    """f and h use a fused form of contact velocities → slips → brush forces → body forces
+    (and of the quasi-static loads): the same floats as the shared module's functions."""
+    model = SkidSteerObserverModel(P)
+    for x, u in _random_cases():
+        got = model.forces(x, u)
+        ref = model.reference_forces(x, u)
+        for a, b in zip(got, ref, strict=True):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(model._terms(u).normal_load, quasi_static_loads(u.ax, u.ay, P))
+        # One point (h's and f's (3,) form) as well.
+        for a, b in zip(model.forces(x[0], u), model.reference_forces(x[0], u), strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_derived_outputs_agree_with_the_vectorised_helpers():
+    from terrain_estimation.models.skid_steer import body_sideslip, instantaneous_centre_of_rotation
+
+    for x, u in _random_cases(100, seed=4):
+        for state in x:
+            out = derived_outputs(state, u.omega_left, u.omega_right, P, 0.02)
+            np.testing.assert_allclose(
+                [out.slip_left, out.slip_right], side_slips(state, u.omega_left, u.omega_right, P), rtol=1e-15
+            )
+            np.testing.assert_allclose(out.tire_sideslip, tire_sideslips(state, P), rtol=1e-15, atol=1e-300)
+            assert out.body_sideslip == pytest.approx(float(body_sideslip(state[0], state[1])), rel=1e-15)
+            ix, iy, ok = instantaneous_centre_of_rotation(state[0], state[1], state[2], 0.02)
+            assert (out.icr_x, out.icr_y, out.icr_valid) == (float(ix), float(iy), bool(ok))

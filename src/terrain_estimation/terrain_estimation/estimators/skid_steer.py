@@ -632,7 +632,7 @@ class SkidSteerEstimator:
             x=px,
             y=py,
             yaw=yaw,
-            twist_covariance=tuple(float(v) for v in P.ravel()),
+            twist_covariance=tuple(P.ravel().tolist()),
             nis=float(nis),
             accepted=bool(accepted),
             initialised=init,

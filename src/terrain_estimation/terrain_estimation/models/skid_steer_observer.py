@@ -87,6 +87,7 @@ sideslip and the ICR with its validity flag).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -96,12 +97,10 @@ import numpy as np
 from terrain_estimation.filters.base import Array
 from terrain_estimation.models.skid_steer import (
     SkidSteerParams,
+    axle_positions,
     body_forces,
-    body_sideslip,
     brush_tire_forces,
     contact_velocities,
-    instantaneous_centre_of_rotation,
-    quasi_static_loads,
     side_slip_ratios,
     theoretical_slips,
     tire_sideslip_angles,
@@ -179,12 +178,19 @@ def relaxation_rate_per_speed(p: SkidSteerParams) -> float:
 
 @dataclass(frozen=True)
 class _StepTerms:
-    """Per-input constants of a step: wheel speeds per wheel, loads, μ, rolling floor."""
+    """Per-input constants of a step: wheel speeds per wheel, loads, μ, rolling floor, and the
+    per-wheel factors of the brush model that depend on the input alone (``R ω``, ``V_r``,
+    ``μ F_z``, the saturation limit ``3 μ F_z`` and its divisor)."""
 
     omega6: Array
     normal_load: Array
     friction: float
     min_rolling_speed: float
+    rolling: Array
+    rolling_floored: Array
+    mu_fz: Array
+    limit: Array
+    limit_divisor: Array
 
 
 class SkidSteerObserverModel:
@@ -245,6 +251,10 @@ class SkidSteerObserverModel:
         self.max_euler_gain = max_euler_gain
         self.max_substeps = max_substeps
         self.relaxation_rate_per_speed = relaxation_rate_per_speed(self.params)
+        self._wheel_x, self._wheel_y = wheel_positions(self.params)  # the params are frozen
+        xa = axle_positions(self.params)
+        s1, s2 = float(np.sum(xa)), float(np.sum(xa**2))
+        self._axles = (xa, s1, s2, 3.0 * s2 - s1**2)
         self._q0_sqrt = np.sqrt(np.array(q))
         self._r0_sqrt = np.diag(np.sqrt(np.array(r)))
         # One-entry cache of the per-input terms: f and h see the same frozen
@@ -345,19 +355,71 @@ class SkidSteerObserverModel:
         p = self.params
         omega6 = np.repeat(np.array([u.omega_left, u.omega_right]), 3)
         rolling = max(min(abs(u.omega_left), abs(u.omega_right)) * p.wheel_radius, p.rolling_speed_floor)
+        normal_load = self._loads(u.ax, u.ay)
+        friction = p.friction if u.friction is None else u.friction
+        # As theoretical_slips and brush_tire_forces compute them (same operations, same floats).
+        rolling6 = p.wheel_radius * omega6
+        mu_fz = np.asarray(friction, dtype=float) * np.maximum(normal_load, 0.0)
+        limit = 3.0 * mu_fz
         terms = _StepTerms(
             omega6=omega6,
-            normal_load=quasi_static_loads(u.ax, u.ay, p),
-            friction=p.friction if u.friction is None else u.friction,
+            normal_load=normal_load,
+            friction=friction,
             min_rolling_speed=rolling,
+            rolling=rolling6,
+            rolling_floored=np.maximum(np.abs(rolling6), p.rolling_speed_floor),
+            mu_fz=mu_fz,
+            limit=limit,
+            limit_divisor=np.where(limit > 0.0, limit, 1.0),
         )
         self._cached_input, self._cached_terms = u, terms
         return terms
 
     def _forces(self, vx: Array, vy: Array, r: Array, terms: _StepTerms) -> tuple[Array, Array, Array]:
-        """Summed brush forces and yaw moment (B.3–B.6) for state components of any shape."""
+        """Summed brush forces and yaw moment (B.3–B.6) for state components of any shape.
+
+        The composition :func:`contact_velocities` → :func:`theoretical_slips` →
+        :func:`brush_tire_forces` → :func:`body_forces` of the shared module
+        (:meth:`reference_forces`), operation for operation, so the floats are
+        the same (a test checks), with what depends on the step's input alone
+        taken from ``terms``. Why spelled out: it runs for every sigma point
+        two or three times per filter step, and the shared functions' argument
+        handling (``asarray``, the wheel positions rebuilt per call) cost more
+        than the arithmetic on a ``(7, 6)`` array.
+        """
+        xw, yw = self._wheel_x, self._wheel_y
+        r_ = r[..., None]
+        v_x = vx[..., None] - yw * r_
+        v_y = vy[..., None] + xw * r_
+        cx_sx = self.params.longitudinal_stiffness * ((terms.rolling - v_x) / terms.rolling_floored)
+        ca_sy = self.params.cornering_stiffness * (-v_y / terms.rolling_floored)
+        gamma = np.hypot(cx_sx, ca_sy)
+        t = np.minimum(gamma, terms.limit) / terms.limit_divisor
+        force = terms.mu_fz * t * (3.0 - 3.0 * t + t * t)
+        scale = np.divide(force, gamma, out=np.zeros(gamma.shape), where=gamma > 0.0)
+        fx = cx_sx * scale
+        fy = ca_sy * scale
+        return fx.sum(axis=-1), fy.sum(axis=-1), (xw * fy - yw * fx).sum(axis=-1)
+
+    def _loads(self, ax: float, ay: float) -> Array:
+        """:func:`quasi_static_loads` for one ``(a_x, a_y)``, operation for operation (the same
+        floats, a test checks) with the axle sums computed once: it runs once per filter step."""
         p = self.params
-        v_x, v_y = contact_velocities(vx, vy, r, p)
+        xa, s1, s2, d = self._axles
+        m, g, h = p.mass, p.gravity, p.cg_height
+        p0 = m * (g * s2 + ax * h * s1) / d
+        q = -m * (3.0 * ax * h + g * s1) / d
+        axle = p0 + q * xa
+        lateral = m * ay * h / (3.0 * p.track)
+        return np.maximum(np.concatenate([0.5 * axle - lateral, 0.5 * axle + lateral]), 0.0)
+
+    def reference_forces(self, x: Array, u: SkidSteerInput) -> tuple[Array, Array, Array]:
+        """:meth:`forces` through the shared module's functions, one after the other (the reference
+        that ``f`` and ``h``'s fused arithmetic must equal)."""
+        p = self.params
+        xs = np.asarray(x, dtype=float)
+        terms = self._terms(u)
+        v_x, v_y = contact_velocities(xs[..., 0], xs[..., 1], xs[..., 2], p)
         sx, sy = theoretical_slips(terms.omega6, v_x, v_y, p)
         fx, fy = brush_tire_forces(
             sx,
@@ -432,23 +494,46 @@ def derived_outputs(
     """Slips, sideslip angles, body sideslip, ICR and encoder estimates at one state ``(3,)`` (B.3).
 
     Every returned float is finite for a finite state (the ICR is 0 and
-    ``icr_valid`` False where ``|r| ≤ min_yaw_rate``).
+    ``icr_valid`` False where ``|r| ≤ min_yaw_rate``). The same formulas as the
+    vectorised :func:`side_slips`, :func:`tire_sideslips`,
+    :func:`~terrain_estimation.models.skid_steer.body_sideslip` and
+    :func:`~terrain_estimation.models.skid_steer.instantaneous_centre_of_rotation`
+    (a test compares them), in scalar arithmetic: the estimator calls this once
+    per step for one state, where numpy's per-call cost is most of the time.
     """
     xs = np.asarray(x, dtype=float)
     if xs.shape != (3,):
         raise ValueError(f"x must have shape (3,), got {xs.shape}")
-    kappa = side_slips(xs, omega_left, omega_right, p)
-    alpha = tire_sideslips(xs, p)
-    ix, iy, ok = instantaneous_centre_of_rotation(xs[0], xs[1], xs[2], min_yaw_rate)
+    vx, vy, r = xs.tolist()
+    half = 0.5 * p.track * r
+    slip_left = _side_slip(p.wheel_radius * omega_left, vx - half, p.rolling_speed_floor)
+    slip_right = _side_slip(p.wheel_radius * omega_right, vx + half, p.rolling_speed_floor)
+    xw, yw = _wheel_xy(p)
+    alpha = tuple(math.atan2(vy + xi * r, abs(vx - yi * r)) for xi, yi in zip(xw, yw, strict=True))
+    valid = abs(r) > min_yaw_rate
     vx_enc, r_enc = encoder_kinematics(omega_left, omega_right, p)
     return SkidSteerOutputs(
-        slip_left=float(kappa[0]),
-        slip_right=float(kappa[1]),
-        tire_sideslip=tuple(float(a) for a in alpha),
-        body_sideslip=float(body_sideslip(xs[0], xs[1])),
-        icr_x=float(ix),
-        icr_y=float(iy),
-        icr_valid=bool(ok),
+        slip_left=slip_left,
+        slip_right=slip_right,
+        tire_sideslip=alpha,
+        body_sideslip=math.atan2(vy, vx),
+        icr_x=-vy / r if valid else 0.0,
+        icr_y=vx / r if valid else 0.0,
+        icr_valid=valid,
         vx_encoder=float(vx_enc),
         yaw_rate_encoder=float(r_enc),
     )
+
+
+def _side_slip(rolling: float, v: float, floor: float) -> float:
+    """:func:`~terrain_estimation.models.skid_steer.side_slip_ratios` for one side, in scalars."""
+    den = rolling if abs(rolling) >= abs(v) else v
+    return 0.0 if abs(den) < floor else (rolling - v) / den
+
+
+@functools.lru_cache(maxsize=16)
+def _wheel_xy(p: SkidSteerParams) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """:func:`~terrain_estimation.models.skid_steer.wheel_positions` as tuples of floats (cached:
+    the parameters are frozen and hashable)."""
+    xw, yw = wheel_positions(p)
+    return tuple(xw.tolist()), tuple(yw.tolist())

@@ -24,6 +24,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import numpy as np
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState
 
@@ -282,7 +283,7 @@ def estimate_to_state_msg(e: SkidSteerEstimate, frame_id: str) -> SkidSteerState
         body_sideslip_variance=e.body_sideslip_variance,
         slip_left=e.slip_left,
         slip_right=e.slip_right,
-        tire_sideslip=list(e.tire_sideslip),
+        tire_sideslip=np.array(e.tire_sideslip),  # float64: taken as is, no per-element check
         icr_x=e.icr_x,
         icr_y=e.icr_y,
         icr_valid=e.icr_valid,
@@ -314,13 +315,15 @@ def estimate_to_odom_msg(e: SkidSteerEstimate, odom_frame: str, base_frame: str)
     msg.twist.twist.linear.y = e.vy
     msg.twist.twist.angular.z = e.yaw_rate
     # [vx, vy, r] → rows/columns 0, 1, 5 of the 6×6 twist covariance (x, y, z, rx, ry, rz).
-    index = (0, 1, 5)
-    cov = [0.0] * 36
-    for i, row in enumerate(index):
-        for j, col in enumerate(index):
-            cov[6 * row + col] = e.twist_covariance[3 * i + j]
+    # A float64 array: the message takes it as it is (a list is checked element by element).
+    cov = np.zeros(36)
+    cov[_TWIST_COV_INDEX] = e.twist_covariance
     msg.twist.covariance = cov
     return msg
+
+
+_TWIST_COV_INDEX = np.array([6 * row + col for row in (0, 1, 5) for col in (0, 1, 5)])
+"""Where the 3×3 covariance of [vx, vy, r] (row-major) goes in the 6×6 twist covariance."""
 
 
 def _frame(namespace: str, frame: str) -> str:
