@@ -90,7 +90,7 @@ def innovation_is_consistent(innovation: Array, P_zz: Array, gamma_th: float) ->
         (no fading needed).
     """
     e = np.asarray(innovation, dtype=float)
-    return bool(e @ e <= gamma_th * float(np.trace(P_zz)))
+    return bool(e @ e <= gamma_th * float(np.asarray(P_zz, dtype=float).trace()))
 
 
 def suboptimal_fading_factor(
@@ -136,7 +136,7 @@ def suboptimal_fading_factor(
     """
     cfg = config if config is not None else StrongTrackingConfig()
     e = np.asarray(innovation, dtype=float)
-    ee = np.outer(e, e)
+    ee = e[:, None] * e  # e eᵀ
     V = ee if V_prev is None else (cfg.rho * np.asarray(V_prev, dtype=float) + ee) / (1.0 + cfg.rho)
     if cfg.gamma_th is not None and innovation_is_consistent(e, P_zz, cfg.gamma_th):
         return 1.0, V
@@ -297,7 +297,7 @@ def adapt_noise_sqrt(
     for name, arr in (("q0_sqrt", q0), ("r0_sqrt", r0)):
         if arr.ndim != 2 or arr.size == 0:
             raise ValueError(f"{name} must be a non-empty 2-D factor, got shape {arr.shape}")
-    a_bar = float(np.mean(np.abs(alpha)))
+    a_bar = float(np.abs(alpha).sum() / alpha.size)  # np.mean's own arithmetic, without its dispatch
     q_scale = 1.0 + k_q * a_bar
     r_scale = 1.0 + k_r * a_bar
     return NoiseAdaptation(

@@ -30,7 +30,6 @@ The adaptation needs the model to give the tire sideslip angles at a state:
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol, runtime_checkable
@@ -40,7 +39,7 @@ import numpy as np
 from .adaptive import StrongTrackingConfig, adapt_noise_sqrt, suboptimal_fading_factor
 from .base import Array, GaussianState, StateSpaceModel, check_vector
 from .kalman import check_factor, check_measurement
-from .ukf import UnscentedKalmanFilter
+from .ukf import SigmaPointPrediction, UnscentedKalmanFilter
 
 __all__ = [
     "Variant",
@@ -202,7 +201,7 @@ class AdaptiveStrongTrackingUKF:
             # B.10: the tire sideslip at the predicted mean x̄ drives Q_k and R_k.
             noise = adapt_noise_sqrt(Lq0, Rs0, sideslip(pred.x, u), k_q=self.k_q, k_r=self.k_r)
             Lq = noise.process_noise_sqrt
-            pred = dataclasses.replace(pred, Q=Lq @ Lq.T)  # x̄ and P̄0 do not depend on Q
+            pred = SigmaPointPrediction(x=pred.x, P0=pred.P0, Q=Lq @ Lq.T)  # x̄ and P̄0 do not depend on Q
             Rs = noise.measurement_noise_sqrt
             noise_scale, a_bar = noise.noise_scale, noise.mean_abs_slip
         # B.9, as strong_tracking_predict: moments at the plain prediction, λ, P̄ = λ P̄0 + Q_k.

@@ -290,7 +290,7 @@ class SkidSteerObserverModel:
         n_sub = self._substeps(terms, dt)
         delta = dt / n_sub
         p = self.params
-        xs = np.array(x, dtype=float)  # a copy: the caller's points stay untouched
+        xs = np.asarray(x, dtype=float)  # only read: every sub-step makes new arrays
         vx, vy, r = xs[..., 0], xs[..., 1], xs[..., 2]
         for _ in range(n_sub):
             fx, fy, mz = self._forces(vx, vy, r, terms)
@@ -299,8 +299,7 @@ class SkidSteerObserverModel:
                 vy + delta * (fy / p.mass - vx * r),
                 r + delta * mz / p.yaw_inertia,
             )
-        out: Array = np.stack([vx, vy, r], axis=-1)
-        return out
+        return _columns(xs.shape, vx, vy, r)
 
     def h(self, x: Array, u: Any) -> Array:
         """``[ΣF_x/m, ΣF_y/m, r]`` at the state (B.7): ``(3,)``/``(m, 3)`` → same shape."""
@@ -309,8 +308,7 @@ class SkidSteerObserverModel:
         vx, vy, r = xs[..., 0], xs[..., 1], xs[..., 2]
         fx, fy, _ = self._forces(vx, vy, r, terms)
         m = self.params.mass
-        out: Array = np.stack([fx / m, fy / m, r], axis=-1)
-        return out
+        return _columns(xs.shape, fx / m, fy / m, r)
 
     def process_noise_sqrt(self, x: Array, u: Any, dt: float) -> Array:
         """``√Q_k = diag(√(q0 · dt/q_step_dt))`` (B.10 base noise, random-walk scaling)."""
@@ -430,6 +428,16 @@ class SkidSteerObserverModel:
             friction=terms.friction,
         )
         return body_forces(fx, fy, p)
+
+
+def _columns(shape: tuple[int, ...], a: Array, b: Array, c: Array) -> Array:
+    """``np.stack([a, b, c], axis=-1)`` into a new array of ``shape`` (``(..., 3)``): the same
+    C-ordered result, without ``stack``'s argument handling (f and h return through it)."""
+    out = np.empty(shape)
+    out[..., 0] = a
+    out[..., 1] = b
+    out[..., 2] = c
+    return out
 
 
 @dataclass(frozen=True)
