@@ -205,7 +205,19 @@ def cases(quick: bool = False) -> list[Case]:
             for x in (0.0, 20.0)
         ),
         # The floor: the same inputs into callbacks that do nothing.
-        Case("(f) bag 20x events, empty callbacks", 1, "bag", 20.0, 0.0, executor="events", empty_callbacks=True),
+        *(
+            Case(
+                f"(f) {'' if v == 'quarter_car' else v + ' '}bag 20x events, empty callbacks",
+                1,
+                "bag",
+                20.0,
+                0.0,
+                executor="events",
+                vehicle=v,
+                empty_callbacks=True,
+            )
+            for v in ("quarter_car", "skid_steer")
+        ),
         Case(
             f"(f) N={fleet[-1]} 1x events, empty callbacks",
             fleet[-1],
