@@ -165,11 +165,13 @@ import bisect
 import dataclasses
 import importlib
 import math
+import operator
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
+from scipy.linalg.lapack import dpotrf as _dpotrf
 
 from terrain_estimation.filters.base import Array, UpdateInfo
 from terrain_estimation.filters.faults import DivergenceConfig, DivergenceMonitor
@@ -563,8 +565,8 @@ def _fit_weights(pt: Array, t: float, half_w: float, degree: int) -> tuple[int, 
         ``degree + 2`` samples or does not reach at least half-way to each
         of its edges (the fit would extrapolate).
     """
-    lo = int(np.searchsorted(pt, t - half_w, side="left"))
-    hi = int(np.searchsorted(pt, t + half_w, side="right"))
+    lo = int(pt.searchsorted(t - half_w, side="left"))
+    hi = int(pt.searchsorted(t + half_w, side="right"))
     if hi - lo < degree + 2:
         return None
     s = (pt[lo:hi] - t) / half_w  # in [−1, 1]: a well-conditioned Vandermonde matrix
@@ -639,6 +641,8 @@ class SoilStiffnessEstimator:
         self._hdot_fit = self._feedthrough and cfg.hdot_window_m > 0.0
         # How far before a step's start the profile is kept (see _prune).
         self._keep_s = max(self._smooth_half_w, _HDOT_MAX_WINDOW_S if self._hdot_fit else 0.0)
+        # R = √R √Rᵀ of the first ``rows`` measurements (constant), by rows.
+        self._r_base: dict[int, Array] = {}
         self.reset()
 
     # -- public API -----------------------------------------------------------
@@ -685,6 +689,8 @@ class SoilStiffnessEstimator:
 
     def drain_estimates(self) -> list[SoilStiffnessEstimate]:
         """Every estimate produced since the last drain, oldest first (≤ 10 000 kept)."""
+        if not self._outbox:  # the common case: a node drains after every message
+            return []
         out = list(self._outbox)
         self._outbox.clear()
         return out
@@ -836,31 +842,63 @@ class SoilStiffnessEstimator:
             produced = est
         return produced
 
+    def _profile_window(self, t0: float, t1: float) -> tuple[Array, Array]:
+        """The buffered samples a reconstruction over ``[t0, t1]`` can touch, as arrays.
+
+        Every sample within ``[t0, t1]``, two more on each side (the
+        neighbours linear interpolation brackets with, the last two samples
+        extrapolation uses) and nothing else: the buffer holds up to a few
+        hundred samples (the profile runs ahead of the IMU, and the ḣ fit
+        keeps 0.1 s behind), and converting all of them on every step cost
+        more than the reconstruction itself. Interpolation, the local fits and
+        the gap search only ever read samples inside this window, so their
+        results are the same as on the whole buffer; the ends of the window
+        are the buffer's ends whenever the reconstruction reaches them.
+
+        Returns:
+            ``(pt, ph)``: the window's stamps and elevations.
+        """
+        lo = max(bisect.bisect_left(self._pt, t0) - 2, 0)
+        hi = bisect.bisect_right(self._pt, t1, lo) + 2
+        return np.array(self._pt[lo:hi]), np.array(self._ph[lo:hi])
+
     def _profile_on_grid(self, grid: Array) -> tuple[Array, float]:
         """Elevation on the sub-step grid and the largest profile gap over it."""
-        pt = np.asarray(self._pt)
-        ph = np.asarray(self._ph)
-        if self._smooth_half_w > 0.0:
-            hg = _local_quadratic(pt, ph, grid, self._smooth_half_w)
+        w = self._smooth_half_w
+        g0, g1 = float(grid[0]), float(grid[-1])
+        pt, ph = self._profile_window(g0 - w, g1 + w)
+        if w > 0.0:
+            hg = _local_quadratic(pt, ph, grid, w)
         else:
             hg = np.interp(grid, pt, ph)
-        beyond = grid > pt[-1]
-        if np.any(beyond):
+        last = float(pt[-1])
+        if g1 > last:  # the grid increases: some of it lies past the last sample
             slope = (ph[-1] - ph[-2]) / (pt[-1] - pt[-2]) if pt.size >= 2 else 0.0
-            hg = np.where(beyond, ph[-1] + slope * (grid - pt[-1]), hg)
-        i0 = max(int(np.searchsorted(pt, grid[0], side="right")) - 1, 0)
-        i1 = min(int(np.searchsorted(pt, grid[-1], side="left")), pt.size - 1)
-        gaps = np.diff(pt[i0 : i1 + 1])
-        max_gap = float(gaps.max()) if gaps.size else 0.0
-        if grid[-1] > pt[-1]:
-            max_gap = max(max_gap, float(grid[-1] - pt[-1]))
+            hg = np.where(grid > last, ph[-1] + slope * (grid - pt[-1]), hg)
+        i0 = max(int(pt.searchsorted(g0, side="right")) - 1, 0)
+        i1 = min(int(pt.searchsorted(g1, side="left")), pt.size - 1)
+        seg = pt[i0 : i1 + 1]
+        max_gap = float((seg[1:] - seg[:-1]).max()) if seg.size > 1 else 0.0
+        if g1 > last:
+            max_gap = max(max_gap, g1 - last)
         return hg, max_gap
 
     def _profile_spacing(self) -> float:
-        """Median spacing (s) of the buffered profile samples (0 with fewer than two)."""
-        if len(self._pt) < 2:
+        """Median spacing (s) of the buffered profile samples (0 with fewer than two).
+
+        The same value as ``np.median(np.diff(pt))`` (the same differences;
+        for an even count the mean of the two middle ones, ``(a + b) / 2``
+        as numpy forms it), computed on the list: the buffer is short (tens
+        to a few hundred samples) and numpy's median costs ≈ 10 µs of call
+        overhead per step.
+        """
+        pt = self._pt
+        n = len(pt) - 1
+        if n < 1:
             return 0.0
-        return float(np.median(np.diff(np.asarray(self._pt))))
+        d = sorted(map(operator.sub, pt[1:], pt))
+        mid = n // 2
+        return d[mid] if n % 2 else (d[mid - 1] + d[mid]) / 2.0
 
     def _hdot_half_window(self, t: float) -> float:
         """Half the time window (s) of the ḣ fit at ``t``; 0 without the fit.
@@ -901,7 +939,10 @@ class SoilStiffnessEstimator:
             used, for white profile noise ``profile_noise_std`` (m², m²/s,
             m²/s²).
         """
-        pt = np.asarray(self._pt)
+        half = self._hdot_half_window(t)
+        # Buffer indices below are relative to the window (lo_h, lo_d alike).
+        reach = max(self._smooth_half_w, half)
+        pt, ph = self._profile_window(t - reach, t + reach)
         var = self.config.profile_noise_std**2
         # Weights of the elevation at t, as _profile_on_grid reconstructs it
         # (for the variance only: the local-fit case is approximated by the
@@ -917,7 +958,7 @@ class SoilStiffnessEstimator:
             if fit is not None:
                 lo_h, w_h = fit[0], fit[1]
             else:
-                i = int(np.searchsorted(pt, t, side="right"))
+                i = int(pt.searchsorted(t, side="right"))
                 if i >= pt.size or i == 0:
                     lo_h, w_h = min(max(i - 1, 0), pt.size - 1), np.ones(1)
                 else:
@@ -926,7 +967,6 @@ class SoilStiffnessEstimator:
         var_h = var * float(w_h @ w_h)
         hdot_end: float | None = None
         fit = None
-        half = self._hdot_half_window(t)
         if half > 0.0:
             for degree in range(_HDOT_DEGREE, 0, -2):  # fewer samples: a lower (odd) degree
                 fit = _fit_weights(pt, t, half, degree)
@@ -934,7 +974,7 @@ class SoilStiffnessEstimator:
                     break
         if fit is not None:
             lo_d, _, w_d = fit
-            hdot_end = float(w_d @ np.asarray(self._ph[lo_d : lo_d + w_d.size]))
+            hdot_end = float(w_d @ ph[lo_d : lo_d + w_d.size])
             var_d = var * float(w_d @ w_d)
             a, b = max(lo_h, lo_d), min(lo_h + w_h.size, lo_d + w_d.size)
             cov = var * float(w_h[a - lo_h : b - lo_h] @ w_d[a - lo_d : b - lo_d]) if b > a else 0.0
@@ -946,18 +986,33 @@ class SoilStiffnessEstimator:
         return hdot_end, np.array([[var_h, cov], [cov, var_d]])
 
     def _measurement_noise_sqrt(self, x: Array, rows: int, sigma_eps: Array) -> Array:
-        """``√R_eff``, ``R_eff = R + G Σ_ε Gᵀ`` with ``G`` the model's road-error gains."""
+        """``√R_eff``, ``R_eff = R + G Σ_ε Gᵀ`` with ``G`` the model's road-error gains.
+
+        ``R`` of the first ``rows`` measurements is the model's constant
+        ``√R √Rᵀ``, formed once per size. The factor is LAPACK ``dpotrf``
+        called directly (the routine ``np.linalg.cholesky`` calls, at a
+        fraction of its wrapper's cost); a matrix that is not positive
+        definite raises ``numpy.linalg.LinAlgError`` as ``cholesky`` does.
+        """
         g_h, g_d = self.model.profile_error_gains(x)
-        gain = np.stack([g_h[:rows], g_d[:rows]], axis=1)
-        rs = self.model.measurement_noise_sqrt()[:rows, :rows]
-        r_eff = rs @ rs.T + gain @ sigma_eps @ gain.T
-        return np.asarray(np.linalg.cholesky(0.5 * (r_eff + r_eff.T)))
+        gain = np.empty((rows, 2))
+        gain[:, 0] = g_h[:rows]
+        gain[:, 1] = g_d[:rows]
+        r = self._r_base.get(rows)
+        if r is None:
+            rs = self.model.measurement_noise_sqrt()[:rows, :rows]
+            r = self._r_base[rows] = rs @ rs.T
+        r_eff = r + gain @ sigma_eps @ gain.T
+        factor, info = _dpotrf(0.5 * (r_eff + r_eff.T), lower=1, clean=1)
+        if info != 0:
+            raise np.linalg.LinAlgError("Matrix is not positive definite")
+        return np.asarray(factor)
 
     def _prune(self) -> None:
         """Drop profile samples no step needs: keep the last one at or before t_prev − w/2."""
         if self._t_prev is None or len(self._pt) < 64:
             return
-        keep_from = int(np.searchsorted(self._pt, self._t_prev - self._keep_s, side="right")) - 1
+        keep_from = bisect.bisect_right(self._pt, self._t_prev - self._keep_s) - 1
         if keep_from > 32:
             del self._pt[:keep_from]
             del self._ph[:keep_from]
@@ -971,7 +1026,7 @@ class SoilStiffnessEstimator:
         hg, max_gap = self._profile_on_grid(grid)
         spacing = self._profile_spacing()
         gap_ratio = max_gap / spacing if spacing > 0.0 else 1.0
-        u_sub = np.diff(hg) / (dt / n_sub)
+        u_sub = (hg[1:] - hg[:-1]) / (dt / n_sub)  # np.diff(hg), one call fewer
         hdot_end, sigma_eps = self._road_at_measurement(t, u_sub, dt / n_sub)
         u: Any = StepInput(u_sub, hdot_end) if self._feedthrough else u_sub
         self._t_prev = t
@@ -1026,7 +1081,7 @@ class SoilStiffnessEstimator:
         cov = np.asarray(post.covariance, dtype=float)
         if self._monitor is not None:
             x, cov, accepted, nis = self._watch(post, x, cov, failed, update_dim, monitor_nis, accepted, nis)
-        elif not (np.all(np.isfinite(x)) and np.all(np.isfinite(cov))):
+        elif not (np.isfinite(x).all() and np.isfinite(cov).all()):
             self._c["recoveries"] += 1
             self._state = prev_state
             self._restart_motion()
@@ -1072,7 +1127,7 @@ class SoilStiffnessEstimator:
         converged = math.sqrt(k_s_var) < cfg.convergence_rel_std * k_s
         self._was_converged = self._was_converged or converged
 
-        state = tuple(float(v) if math.isfinite(v) else 0.0 for v in x)
+        state = tuple(v if math.isfinite(v) else 0.0 for v in x.tolist())
         est = SoilStiffnessEstimate(
             t=t,
             k_s=k_s,

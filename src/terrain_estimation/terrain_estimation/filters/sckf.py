@@ -114,7 +114,7 @@ class SquareRootCubatureKalmanFilter:
         Xs = check_points("model.f", model.f(X, u, dt), 2 * n, n)  # (15)
         x_pred = ps.Wm @ Xs  # (16)
         chi_star_t = (Xs - x_pred) * (1.0 / math.sqrt(2 * n))  # (17), transposed
-        S_pred = tria(np.vstack([chi_star_t, L.T]).T)  # (18)
+        S_pred = tria(np.concatenate((chi_star_t, L.T)).T)  # (18)
         return SqrtGaussianState(x=x_pred, S=S_pred)
 
     def update(
@@ -160,16 +160,16 @@ class SquareRootCubatureKalmanFilter:
         Z = check_points("model.h", model.h(x + dX, u), 2 * n, p)  # (19)-(20)
         z_hat = ps.Wm @ Z  # (21)
         Zc_t = (Z - z_hat) * c  # (22), transposed: 𝒵ᵀ (2n, p)
-        S_z = tria(np.vstack([Zc_t, Rs.T]).T)  # (23)
+        S_z = tria(np.concatenate((Zc_t, Rs.T)).T)  # (23)
         chi_t = dX * c  # (24), transposed: χᵀ (2n, n)
         P_xz = chi_t.T @ Zc_t  # (25)
         nu = zv - z_hat
         info_extras = {"innovation_cov_sqrt": S_z}
         # First solve of (26), S_z A = [P_xzᵀ, ν]: also whitens ν for the NIS ‖S_z⁻¹ν‖².
-        A = solve_lower(S_z, np.column_stack([P_xz.T, nu]))
+        A = solve_lower(S_z, np.concatenate((P_xz.T, nu[:, None]), axis=1))
         w = A[:, n]
         nis = float(w @ w)
-        if not np.diagonal(S_z).all():
+        if not S_z.diagonal().all():
             # S_z singular (R = 0 and degenerate points): no usable innovation;
             # an infinite NIS makes the gate reject it whatever the threshold.
             nis = float("inf")
@@ -185,6 +185,6 @@ class SquareRootCubatureKalmanFilter:
         # Second solve of (26), S_zᵀ Wᵀ = A: W = P_xz S_z⁻ᵀ S_z⁻¹.
         W_t = solve_lower(S_z, A[:, :n], transpose=True)
         x_post = x + nu @ W_t  # (27)
-        S_post = tria(np.vstack([chi_t - Zc_t @ W_t, Rs.T @ W_t]).T)  # (28)
+        S_post = tria(np.concatenate((chi_t - Zc_t @ W_t, Rs.T @ W_t)).T)  # (28)
         info = UpdateInfo(innovation=nu, innovation_cov=S_z @ S_z.T, nis=nis, accepted=True, extras=info_extras)
         return SqrtGaussianState(x=x_post, S=S_post), info

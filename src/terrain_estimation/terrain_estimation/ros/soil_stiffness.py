@@ -545,7 +545,10 @@ class SoilStiffnessAdapter:
                 profile_rejected=c.profile_rejected,
                 divergences=c.divergences,
             )
-        h.errors = divergence_errors(self.estimator.fault, self.estimator.counters.divergences)
+        # Runs for every input message (≈ 13 per filter step on the quarter
+        # car): the counters are only read when there is a fault to report.
+        fault = self.estimator.fault
+        h.errors = divergence_errors(fault, self.estimator.counters.divergences) if fault else []
         return estimates
 
 
