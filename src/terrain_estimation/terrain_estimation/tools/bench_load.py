@@ -500,19 +500,24 @@ def empty_callback_node(vehicle: str, namespace: str, context: Any) -> Any:
     let the collector's discovery finish."""
     from rclpy.node import Node
 
-    from terrain_estimation.ros.qos import qos_for
+    from terrain_estimation.ros import framework
     from terrain_estimation.vehicles import estimator_parameters, get_vehicle
 
     entry = get_vehicle(vehicle)
-    adapter = entry.make_adapter(estimator_parameters(entry), namespace)
+    values = estimator_parameters(entry)
+    adapter = entry.make_adapter(values, namespace)
     node = Node("empty_callbacks", namespace=namespace, context=context)
     node.messages_handled = 0  # type: ignore[attr-defined]
 
     def count(msg: Any) -> None:
         node.messages_handled += 1  # type: ignore[attr-defined]
 
+    # framework.qos_for and the node's depth parameter, as EstimatorNode subscribes (and as the
+    # bench's deep-queue rows patch it).
+    depth = int(values["qos.sensor_depth"])
+    qos_for = framework.qos_for
     for spec in adapter.inputs:
-        node.create_subscription(spec.msg_type, spec.topic, count, qos_for(spec.kind))
+        node.create_subscription(spec.msg_type, spec.topic, count, qos_for(spec.kind, depth))
     for spec in adapter.outputs:
         node.create_publisher(spec.msg_type, spec.topic, qos_for(spec.kind))
     return node
