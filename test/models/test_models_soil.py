@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -120,3 +122,36 @@ def test_cusum_fires_on_a_step_and_not_on_a_stationary_run() -> None:
     assert not det.update(float("nan"))
     with pytest.raises(ValueError):
         CusumDetector(threshold=0.0)
+
+
+def _classify_reference(k_s, k_s_variance, table, class_log_std, unknown_weight, log_ks_range=(1e3, 1e8)):
+    """classify_soil as first written (np.log of the table on every call, np.append, np.mean...)."""
+    n = len(table)
+    var_rel = float(k_s_variance) / (k_s * k_s)
+    s2 = var_rel + class_log_std**2
+    centres = np.log(np.array([c.k_s for c in table], dtype=float))
+    log_post = -0.5 * (math.log(k_s) - centres) ** 2 / s2 - 0.5 * math.log(2.0 * math.pi * s2)
+    log_post = log_post + math.log((1.0 - unknown_weight) / n)
+    if unknown_weight > 0.0:
+        width = math.log(log_ks_range[1]) - math.log(log_ks_range[0])
+        log_post = np.append(log_post, math.log(unknown_weight) - math.log(width))
+    post = np.exp(log_post - np.max(log_post))
+    post /= post.sum()
+    named = post[:n]
+    best = int(np.argmax(named))
+    return (
+        table[best].name,
+        float(named[best]),
+        tuple(float(p) for p in named),
+        (float(post[n]) if unknown_weight > 0.0 else 0.0),
+    )
+
+
+@pytest.mark.parametrize("unknown_weight", [0.0, 0.05, 0.5])
+def test_classification_equals_its_first_form_bit_for_bit(unknown_weight):
+    rng = np.random.default_rng(11)
+    for table in (SOIL_TABLE, list(SOIL_TABLE[:3])):  # a list is accepted too
+        for k_s, rel_std in zip(10 ** rng.uniform(3.5, 7.5, 300), 10 ** rng.uniform(-4, 0.5, 300), strict=True):
+            got = classify_soil(k_s, (rel_std * k_s) ** 2, table, 0.1, unknown_weight)
+            ref = _classify_reference(k_s, (rel_std * k_s) ** 2, table, 0.1, unknown_weight)
+            assert (got.name, got.confidence, got.probabilities, got.unknown_probability) == ref

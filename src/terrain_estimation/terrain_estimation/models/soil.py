@@ -12,6 +12,7 @@ vehicle simulator).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -211,21 +212,27 @@ def classify_soil(
         var_rel = 1e6
     s2 = var_rel + class_log_std**2
     ell = math.log(k_s)
-    centres = np.log(np.array([c.k_s for c in table], dtype=float))
-    log_like = -0.5 * (ell - centres) ** 2 / s2 - 0.5 * math.log(2.0 * math.pi * s2)
-    log_post = log_like + math.log((1.0 - unknown_weight) / n)
+    log_post = np.empty(n + 1 if unknown_weight > 0.0 else n)
+    log_post[:n] = -0.5 * (ell - _log_centres(tuple(table))) ** 2 / s2 - 0.5 * math.log(2.0 * math.pi * s2)
+    log_post[:n] += math.log((1.0 - unknown_weight) / n)
     if unknown_weight > 0.0:
         width = math.log(log_ks_range[1]) - math.log(log_ks_range[0])
-        log_unknown = math.log(unknown_weight) - math.log(width)
-        log_post = np.append(log_post, log_unknown)
+        log_post[n] = math.log(unknown_weight) - math.log(width)
     # log-sum-exp normalisation: no under/overflow for far-away estimates
-    post = np.exp(log_post - np.max(log_post))
+    post = np.exp(log_post - log_post.max())
     post /= post.sum()
     named = post[:n]
-    best = int(np.argmax(named))
+    best = int(named.argmax())
     p_unknown = float(post[n]) if unknown_weight > 0.0 else 0.0
-    probabilities = tuple(float(p) for p in named)
-    return SoilClassification(table[best].name, float(named[best]), probabilities, p_unknown)
+    return SoilClassification(table[best].name, float(named[best]), tuple(named.tolist()), p_unknown)
+
+
+@functools.lru_cache(maxsize=16)
+def _log_centres(table: tuple[SoilClass, ...]) -> np.ndarray:
+    """``ln k_c`` of each class (read-only; cached: the estimator classifies every filter step)."""
+    centres = np.log(np.array([c.k_s for c in table], dtype=float))
+    centres.setflags(write=False)
+    return centres
 
 
 class CusumDetector:
