@@ -4,6 +4,7 @@ invalid updates, diagnostics, simulated time driven by a simulator node."""
 from __future__ import annotations
 
 import pytest
+import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped
 from rclpy.executors import SingleThreadedExecutor
@@ -158,3 +159,80 @@ def test_simulator_drives_sim_time_and_estimator(rclpy_context):
         executor.shutdown()
         sim.destroy_node()
         est.destroy_node()
+
+
+class TwoTopicRecorder:
+    """A test double with two inputs that records the order in which messages reach it."""
+
+    def __init__(self, values, namespace):
+        self.inputs = [
+            TopicSpec("fast", "fast", PointStamped, "sensor"),
+            TopicSpec("slow", "slow", PointStamped, "sensor"),
+        ]
+        self.outputs = [TopicSpec("mean", "mean", PointStamped, "estimate")]
+        self.health = AdapterHealth(nis_dof=1)
+        self.seen: list[tuple[str, float]] = []
+
+    def handle(self, key, msg):
+        self.seen.append((key, stamp_to_sec(msg.header.stamp)))
+        return []
+
+    def reset(self):
+        pass
+
+
+@pytest.mark.parametrize(("take_queued", "sim_time"), [(0, False), (50, False), (50, True)])
+def test_queued_inputs_are_taken_in_stamp_order_and_none_is_lost(rclpy_context, take_queued, sim_time):
+    """A burst queued on two topics reaches the adapter whole; with input.take_queued the first
+    callback takes the rest, merged by stamp (each topic in its own order); with 0, or under sim
+    time (inputs keep their order with /clock), one message per executor callback."""
+    import time
+
+    from terrain_estimation.ros.qos import SENSOR_QOS
+
+    node = EstimatorNode(
+        "recorder",
+        (),
+        TwoTopicRecorder,
+        namespace="/veh",
+        parameter_overrides=[
+            Parameter("input.take_queued", value=take_queued),
+            Parameter("use_sim_time", value=sim_time),
+        ],
+        context=rclpy_context,
+    )
+    source = rclpy.create_node("source", namespace="/veh", context=rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    try:
+        pubs = {k: source.create_publisher(PointStamped, k, SENSOR_QOS) for k in ("fast", "slow")}
+        deadline = time.monotonic() + 10.0
+        while any(p.get_subscription_count() == 0 for p in pubs.values()):
+            assert time.monotonic() < deadline, "the recorder's subscriptions were not discovered"
+            time.sleep(0.02)
+        # The slow topic first (as a driver whose messages arrive late), then the fast one.
+        sent = {"slow": [0.005, 0.015, 0.025], "fast": [0.001 * i for i in range(1, 31)]}
+        for key in ("slow", "fast"):
+            for t in sent[key]:
+                msg = PointStamped()
+                msg.header.stamp = sec_to_stamp(t)
+                pubs[key].publish(msg)
+        time.sleep(0.5)  # every message queued on the subscriptions
+        executor.spin_once(timeout_sec=1.0)
+        first_callback = len(node.adapter.seen)
+        deadline = time.monotonic() + 10.0
+        while node.messages_handled < 33 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        seen = node.adapter.seen
+        assert node.messages_handled == len(seen) == 33
+        for key in ("slow", "fast"):
+            assert [t for k, t in seen if k == key] == pytest.approx(sent[key])
+        if take_queued and not sim_time:
+            assert first_callback == 33, "the first callback took every queued message"
+            assert [t for _, t in seen[1:]] == sorted(t for _, t in seen[1:]), "merged by stamp"
+        else:
+            assert first_callback == 1
+    finally:
+        executor.shutdown()
+        source.destroy_node()
+        node.destroy_node()
