@@ -52,23 +52,19 @@ Figures per row:
 Executors compared (``executor`` column; the host builds it, the nodes are the
 project's own :class:`~terrain_estimation.ros.framework.EstimatorNode`):
 
-* ``single``: rclpy's ``SingleThreadedExecutor``, what ``spin_node`` uses
-  today. It waits, then takes *one* message per ready subscription per
-  wait, rebuilding the wait set (every subscription, timer, service and
-  guard condition of every node) in Python each time;
-* ``drain``: the same executor, with each input subscription's callback
-  also taking the messages already queued on that subscription (up to
-  :data:`DRAIN_LIMIT`) before it returns: one wait per burst instead of one
-  per message (applied by wrapping the node's subscription callbacks, see
-  :func:`drain_subscriptions`). It shows what the per-wait cost is, and its
-  hazard: under a backlog it (like ``single``'s round robin, one message per
-  topic per wait) serves each topic at the same message rate, so the 100 Hz
-  accelerometers run ahead of the 1 kHz profile and the estimator drops the
-  filter steps whose road has not come within ``estimator.max_wait`` (the
-  "estimates" column: received of expected);
+* ``single``: rclpy's ``SingleThreadedExecutor`` with the node's
+  ``input.take_queued`` set to 0. It waits, then takes *one* message per
+  ready subscription per wait, rebuilding the wait set (every subscription,
+  timer, service and guard condition of every node) in Python each time;
 * ``events``: rclpy's ``EventsExecutor`` (``rclpy.experimental``, C++, in
-  the Jazzy wheels): the middleware's events drive the callbacks in arrival
-  order, no wait set is rebuilt.
+  the Jazzy wheels), ``input.take_queued`` 0: the middleware's events drive
+  the callbacks in arrival order, one message per callback, no wait set;
+* ``events+take``: the same executor with the node's default
+  ``input.take_queued`` (what ``terrain-estimator-node`` runs): after each
+  delivered message the node takes what is already queued on its input
+  subscriptions and handles it in stamp order
+  (:meth:`~terrain_estimation.ros.framework.EstimatorNode._take_queued`),
+  about half the executor-thread CPU per message under a backlog.
 
 QoS and queues (:mod:`terrain_estimation.ros.qos`, CONTRACT.md): sensor topics
 best effort, keep last :data:`~terrain_estimation.ros.qos.SENSOR_DEPTH` on
@@ -82,7 +78,7 @@ faster than it fills, and a depth that covers the longest stall.
 
 Nothing here asserts a time: the figures depend on the machine (its CPU
 count and load average are printed). ``--quick`` is a smoke run (short
-drives, N = 1, 2, 3 instead of 1, 5, 10, the drain executor in one row); ``--out FILE`` writes the Markdown
+drives, N = 1, 2, 3 instead of 1, 5, 10, ``events`` without the take in one row); ``--out FILE`` writes the Markdown
 report (``make bench-load`` writes ``docs/results/robustness.md``).
 """
 
@@ -100,7 +96,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -108,11 +104,9 @@ import numpy as np
 
 __all__ = [
     "Case",
-    "DRAIN_LIMIT",
     "EXECUTORS",
     "FLOW_WINDOW_S",
     "cases",
-    "drain_subscriptions",
     "format_table",
     "main",
     "run_case",
@@ -126,9 +120,7 @@ BAG_OF: dict[str, str] = {
     "rover": "rover_terrain_1",
 }
 """The recorded bag each vehicle's bag rows replay (``bags/``)."""
-EXECUTORS: tuple[str, ...] = ("single", "drain", "events")
-DRAIN_LIMIT = 10
-"""At most this many queued messages taken by one callback (other subscriptions get their turn)."""
+EXECUTORS: tuple[str, ...] = ("single", "events", "events+take")
 FLOW_WINDOW_S = 0.1
 """Flow-controlled replay: simulated seconds the player may run ahead of the last estimate (130 messages
 of the nominal quarter car, inside the sensor queue depth of 200)."""
@@ -156,7 +148,7 @@ class Case:
         factor: × real time of an open-loop replay; 0: as fast as the node takes it (flow control).
         duration: simulated seconds of a ``"sim"`` source (a bag plays whole).
         sensor_rate: accelerometer and joint-state rate (Hz) of a ``"sim"`` source.
-        executor: ``single``, ``drain`` or ``events`` (module docstring).
+        executor: ``single``, ``events`` or ``events+take`` (module docstring).
         sensor_depth: sensor queue depth on both sides; 0: the project's
             :data:`~terrain_estimation.ros.qos.SENSOR_DEPTH`.
         processes: host processes the vehicles are spread over (CPU: their sum).
@@ -182,11 +174,11 @@ class Case:
 
 
 def cases(quick: bool = False) -> list[Case]:
-    """The rows, in print order (``quick``: short drives, N = 1, 2, 3, the drain executor once)."""
+    """The rows, in print order (``quick``: short drives, N = 1, 2, 3, ``events`` without the take once)."""
     d = 0.5 if quick else 10.0
     fleet = (1, 2, 3) if quick else (1, 5, 10)
     rows = [
-        *(Case(f"(a) nominal 1x {ex}", 1, "sim", 1.0, d, executor=ex) for ex in ("single", "events")),
+        *(Case(f"(a) nominal 1x {ex}", 1, "sim", 1.0, d, executor=ex) for ex in ("single", "events+take")),
         *(Case(f"(b) 1 kHz IMU 1x {ex}", 1, "sim", 1.0, d, 1000.0, ex) for ex in EXECUTORS),
         *(Case(f"(c) bag max {ex}", 1, "bag", 0.0, 0.0, executor=ex) for ex in EXECUTORS),
         *(Case(f"(c) bag 20x {ex}", 1, "bag", 20.0, 0.0, executor=ex) for ex in EXECUTORS),
@@ -195,14 +187,24 @@ def cases(quick: bool = False) -> list[Case]:
             for ex in EXECUTORS[1:]
         ),
         *(Case(f"(d) N={n} 1x single", n, "sim", 1.0, d) for n in fleet),
-        Case(f"(d) N={fleet[1]} 1x events", fleet[1], "sim", 1.0, d, executor="events"),
+        Case(f"(d) N={fleet[1]} 1x events+take", fleet[1], "sim", 1.0, d, executor="events+take"),
         *(Case(f"(d) N={fleet[-1]} 1x {ex}", fleet[-1], "sim", 1.0, d, executor=ex) for ex in EXECUTORS[1:]),
-        Case(f"(d) N={fleet[-1]} 1x events, 2 processes", fleet[-1], "sim", 1.0, d, executor="events", processes=2),
-        # The other estimators on their recorded bags (events executor, the fastest above).
+        Case(
+            f"(d) N={fleet[-1]} 1x events+take, 2 processes",
+            fleet[-1],
+            "sim",
+            1.0,
+            d,
+            executor="events+take",
+            processes=2,
+        ),
+        # The other estimators on their recorded bags, as the node runs (events+take); the skid
+        # steer's 20x also without the take.
         *(
-            Case(f"(e) {v} bag {'max' if x == 0 else f'{x:g}x'} events", 1, "bag", x, 0.0, executor="events", vehicle=v)
+            Case(f"(e) {v} bag {'max' if x == 0 else f'{x:g}x'} {ex}", 1, "bag", x, 0.0, executor=ex, vehicle=v)
             for v in ("skid_steer", "rover")
             for x in (0.0, 20.0)
+            for ex in (("events", "events+take") if (v, x) == ("skid_steer", 20.0) else ("events+take",))
         ),
         # The floor: the same inputs into callbacks that do nothing.
         *(
@@ -228,8 +230,8 @@ def cases(quick: bool = False) -> list[Case]:
             empty_callbacks=True,
         ),
     ]
-    if quick:  # the drain executor once (bag max): every host start costs seconds
-        rows = [c for c in rows if c.executor != "drain" or c.label.startswith("(c) bag max")]
+    if quick:  # the events executor without the take once (bag max): every host start costs seconds
+        rows = [c for c in rows if c.executor != "events" or c.label.startswith(("(c) bag max", "(f)"))]
     return rows
 
 
@@ -346,43 +348,6 @@ def expected_estimates(stream: Sequence[tuple[str, Any]], filter_rate: float = 1
 # ---------------------------------------------------------------------------
 
 
-def drain_subscriptions(node: Any, limit: int = DRAIN_LIMIT) -> int:
-    """Wrap each input subscription's callback of an ``EstimatorNode`` so that it also takes the
-    messages already queued on its subscription (up to ``limit``) before returning.
-
-    rclpy's wait-based executors take one message per ready subscription per wait; a
-    subscription fed at 1 kHz then needs a thousand waits a second, each rebuilding the
-    wait set in Python. Taking what is queued costs one ``take`` per message. The
-    proposed framework change does the same inside ``EstimatorNode`` (``/tmp/load/framework.diff``).
-    Returns the number of subscriptions wrapped.
-    """
-    from rclpy.exceptions import InvalidHandle
-
-    inputs = {node.resolve_topic_name(s.topic) for s in node.adapter.inputs}
-    wrapped = 0
-    for sub in node.subscriptions:
-        if sub.topic_name not in inputs:
-            continue
-        inner = sub.callback
-
-        def callback(msg: Any, inner: Callable[[Any], None] = inner, sub: Any = sub) -> None:
-            inner(msg)
-            for _ in range(limit):
-                try:
-                    with sub.handle:
-                        taken = sub.handle.take_message(sub.msg_type, sub.raw)
-                except InvalidHandle:
-                    return
-                if taken is None:
-                    return
-                inner(taken[0])
-
-        # A one-argument callable keeps the subscription's MessageOnly callback type.
-        sub.callback = lambda msg, cb=callback: cb(msg)
-        wrapped += 1
-    return wrapped
-
-
 def sensor_qos(depth: int) -> Any:
     """The project's sensor QoS with another depth (0: unchanged)."""
     from rclpy.qos import QoSProfile
@@ -427,18 +392,20 @@ def host_main(spec: dict[str, Any]) -> int:
     rclpy.init(context=context)
     first = int(spec.get("first", 0))
     vehicle = spec.get("vehicle", "quarter_car")
+    executor_kind = spec["executor"]
     nodes: list[Any] = [
         empty_callback_node(vehicle, namespace_of(k), context)
         if spec.get("empty_callbacks")
-        else make_estimator_node(vehicle, namespace=namespace_of(k), context=context)
+        else make_estimator_node(
+            vehicle,
+            namespace=namespace_of(k),
+            context=context,
+            overrides={} if executor_kind == "events+take" else {"input.take_queued": 0},
+        )
         for k in range(first, first + spec["vehicles"])
     ]
-    executor_kind = spec["executor"]
-    if executor_kind == "drain":
-        for node in nodes:
-            drain_subscriptions(node)
     executor: Any
-    if executor_kind == "events":
+    if executor_kind.startswith("events"):
         from rclpy.experimental import EventsExecutor
 
         executor = EventsExecutor(context=context)
@@ -934,13 +901,15 @@ QOS_TEXT = """\
   stall of the estimator shorter than that loses nothing. An overflowing best-effort queue drops the
   oldest samples: the "dropped" column.
 - Estimates (`soil_stiffness`): reliable, volatile, keep last 10 (`ESTIMATE_QOS`).
-- Executor: one per process. `single` is rclpy's `SingleThreadedExecutor` (what `spin_node` uses
-  when this was written): one message per ready subscription per wait, the wait set rebuilt in
-  Python each time. `drain`: the same, each input callback also taking up to 10 queued messages of
-  its topic (measures the per-wait cost; under a backlog it, like `single`'s round robin, serves the
-  100 Hz accelerometers as many messages as the 1 kHz profile, the steps run ahead of the road and the
-  estimator drops them: compare "estimates" with what a lossless run gives). `events`: rclpy's C++
-  `EventsExecutor` (`rclpy.experimental`, in the Jazzy wheels), callbacks in arrival order.
+- Executor: one per process. `single` is rclpy's `SingleThreadedExecutor` with the node's
+  `input.take_queued` at 0: one message per ready subscription per wait, the wait set rebuilt in
+  Python each time. `events`: rclpy's C++ `EventsExecutor` (`rclpy.experimental`, in the Jazzy
+  wheels), one message per callback in arrival order (`input.take_queued` 0). `events+take`: what
+  `terrain-estimator-node` runs, the same executor with the node's default `input.take_queued` (50):
+  after each delivered message the node takes what is already queued on its input subscriptions and
+  handles it merged in stamp order (each topic in its own order). A topic drained on its own would run
+  ahead of the others (the quarter car's accelerometers ahead of the 1 kHz profile, whose filter steps
+  would then be dropped for want of road).
 - Deep-queue rows (`depth 6000`): the sensor queues of both sides deep enough for the whole bag, to
   separate loss by overflow from loss by speed.
 - The offline ceiling is the same adapter and filter fed from the bag without ROS: no executor makes
