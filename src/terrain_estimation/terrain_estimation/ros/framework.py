@@ -95,6 +95,10 @@ _wall_time = time.monotonic
 """The clock of the log throttle (wall time: a paused sim clock must not silence the logs)."""
 
 
+def _first(item: tuple[Any, ...]) -> Any:
+    return item[0]
+
+
 @dataclass(frozen=True)
 class TopicSpec:
     """A topic an adapter reads or writes.
@@ -499,6 +503,7 @@ class EstimatorNode(_ParamsMixin, Node):
         self._output_publishers = {
             o.key: self.create_publisher(o.msg_type, o.topic, qos_for(o.kind)) for o in self.adapter.outputs
         }
+        self._held: dict[str, list[tuple[int, str, Any]]] = {}  # taken, not yet handled (_take_queued)
         self._input_subscriptions = [
             (
                 spec.key,
@@ -542,9 +547,13 @@ class EstimatorNode(_ParamsMixin, Node):
 
     def _callback_for(self, key: str) -> Callable[[Any], None]:
         def callback(msg: Any) -> None:
-            self._on_input(key, msg)
-            if self.values["input.take_queued"] and not self._sim_time_active():
-                self._take_queued(int(self.values["input.take_queued"]))
+            limit = 0 if self._sim_time_active() else int(self.values["input.take_queued"])
+            if not limit and not self._held:
+                self._on_input(key, msg)  # one message per callback
+                return
+            # The delivered message is the next of its topic: after what is held, merged with the rest.
+            self._held.setdefault(key, []).append((stamp_to_ns(msg.header.stamp), key, msg))
+            self._take_queued(limit)
 
         return callback
 
@@ -568,8 +577,9 @@ class EstimatorNode(_ParamsMixin, Node):
             self.messages_handled += 1
 
     def _take_queued(self, limit: int) -> None:
-        """Handle the messages already queued on the input subscriptions (up to ``limit`` each),
-        oldest stamp first.
+        """Handle the held messages (the one just delivered among them) and those already queued
+        on the input subscriptions (up to ``limit`` taken from each per call; 0: none), oldest
+        stamp first.
 
         Why: the executor hands a Python callback one message per event, and that costs
         more of the executor thread than the estimator's own work on a message of the
@@ -577,30 +587,43 @@ class EstimatorNode(_ParamsMixin, Node):
         directly costs about half. Under a backlog most messages then come this way; with
         no backlog each input subscription answers one empty take (about 1 µs).
 
-        Order: the batches are merged by stamp, each topic in its own arrival order (so
-        the input checks still see a topic's stamps as they came). A topic drained on
-        its own would run ahead of the others: the quarter car's accelerometers ahead
-        of the road profile, whose steps would then have no road. Under sim time the
-        callback does not call this: inputs taken ahead of the ``/clock`` messages
-        queued with them would meet a clock that lags them (the future-stamp check).
+        Order: the topics are merged by stamp, each in its own arrival order (so the input
+        checks still see a topic's stamps as they came). A topic handled ahead of the others
+        would break the estimators' pairing of inputs (the quarter car's accelerometers ahead
+        of the 1 kHz profile: filter steps without their road). So when a subscription gave
+        ``limit`` messages (more may be queued), nothing stamped after its last one is handled
+        yet: the rest waits in ``_held``, in order, for the next call, which the messages
+        still queued will cause (and the message that call delivers joins its topic's held
+        ones, behind them). Under sim time nothing is taken: inputs taken ahead of the
+        ``/clock`` messages queued with them would meet a clock that lags them (the
+        future-stamp check).
         """
-        batches = []
+        horizon = math.inf
+        sequences = []
         for key, sub in self._input_subscriptions:
-            taken: list[tuple[int, int, str, Any]] = []
+            taken = self._held.pop(key, [])
+            fresh = 0
             try:
                 with sub.handle:
-                    while len(taken) < limit:
+                    while fresh < limit:
                         item = sub.handle.take_message(sub.msg_type, sub.raw)
                         if item is None:
                             break
-                        taken.append((stamp_to_ns(item[0].header.stamp), len(taken), key, item[0]))
+                        taken.append((stamp_to_ns(item[0].header.stamp), key, item[0]))
+                        fresh += 1
             except InvalidHandle:  # the node is being destroyed
                 return
+            if limit and fresh == limit:
+                horizon = min(horizon, taken[-1][0])
             if taken:
-                batches.append(taken)
-        merged = batches[0] if len(batches) == 1 else heapq.merge(*batches)
-        for _, _, key, msg in merged:
-            self._on_input(key, msg)
+                sequences.append(taken)
+        holding = False
+        for stamp, key, msg in heapq.merge(*sequences, key=_first):
+            holding = holding or stamp > horizon  # from here on, in merge order (each topic's order)
+            if holding:
+                self._held.setdefault(key, []).append((stamp, key, msg))
+            else:
+                self._on_input(key, msg)
 
     def _throttled(self, reason: str, line: str, level: str = "warn") -> None:
         """Log ``line`` unless ``reason`` was logged less than ``input.log_throttle`` ago (wall time)."""
