@@ -212,7 +212,9 @@ def test_queued_inputs_are_taken_in_stamp_order_and_none_is_lost(rclpy_context, 
             assert time.monotonic() < deadline, "the recorder's subscriptions were not discovered"
             time.sleep(0.02)
         # The slow topic first (as a driver whose messages arrive late), then the fast one.
-        sent = {"slow": [0.005, 0.015, 0.025], "fast": [0.001 * i for i in range(1, 31)]}
+        # 30 fast messages: a take of 5 empties the queue exactly, so the last slow one (after
+        # them) is held with nothing left queued to wake the node: the guard condition must.
+        sent = {"slow": [0.005, 0.015, 0.025, 0.035], "fast": [0.001 * i for i in range(1, 31)]}
         for key in ("slow", "fast"):
             for t in sent[key]:
                 msg = PointStamped()
@@ -222,19 +224,19 @@ def test_queued_inputs_are_taken_in_stamp_order_and_none_is_lost(rclpy_context, 
         executor.spin_once(timeout_sec=1.0)
         first_callback = len(node.adapter.seen)
         deadline = time.monotonic() + 10.0
-        while node.messages_handled < 33 and time.monotonic() < deadline:
+        while node.messages_handled < 34 and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.1)
         seen = node.adapter.seen
-        assert node.messages_handled == len(seen) == 33
+        assert node.messages_handled == len(seen) == 34
         for key in ("slow", "fast"):
             assert [t for k, t in seen if k == key] == pytest.approx(sent[key])
         stamps = [t for _, t in seen]
         if take_queued and not sim_time:
             assert stamps == sorted(stamps), "merged by stamp"
             if take_queued >= 30:
-                assert first_callback == 33, "the first callback took every queued message"
+                assert first_callback == 34, "the first callback took every queued message"
             else:
-                assert 1 < first_callback < 33, "the cut topic's later messages waited for the next call"
+                assert 1 < first_callback < 34, "the cut topic's later messages waited for the next call"
         else:
             assert first_callback == 1
             assert stamps != sorted(stamps)  # the slow topic's burst came first

@@ -504,6 +504,9 @@ class EstimatorNode(_ParamsMixin, Node):
             o.key: self.create_publisher(o.msg_type, o.topic, qos_for(o.kind)) for o in self.adapter.outputs
         }
         self._held: dict[str, list[tuple[int, str, Any]]] = {}  # taken, not yet handled (_take_queued)
+        # Wakes the executor for another _take_queued while messages are held: the events of
+        # the messages taken early find nothing, so none of them would.
+        self._held_wake = self.create_guard_condition(self._take_held)
         self._input_subscriptions = [
             (
                 spec.key,
@@ -547,7 +550,7 @@ class EstimatorNode(_ParamsMixin, Node):
 
     def _callback_for(self, key: str) -> Callable[[Any], None]:
         def callback(msg: Any) -> None:
-            limit = 0 if self._sim_time_active() else int(self.values["input.take_queued"])
+            limit = self._take_limit()
             if not limit and not self._held:
                 self._on_input(key, msg)  # one message per callback
                 return
@@ -556,6 +559,14 @@ class EstimatorNode(_ParamsMixin, Node):
             self._take_queued(limit)
 
         return callback
+
+    def _take_limit(self) -> int:
+        """``input.take_queued``, or 0 under sim time (see :meth:`_take_queued`)."""
+        return 0 if self._sim_time_active() else int(self.values["input.take_queued"])
+
+    def _take_held(self) -> None:
+        if self._held:
+            self._take_queued(self._take_limit())
 
     def _sim_time_active(self) -> bool:
         clock = self.get_clock()
@@ -592,8 +603,8 @@ class EstimatorNode(_ParamsMixin, Node):
         would break the estimators' pairing of inputs (the quarter car's accelerometers ahead
         of the 1 kHz profile: filter steps without their road). So when a subscription gave
         ``limit`` messages (more may be queued), nothing stamped after its last one is handled
-        yet: the rest waits in ``_held``, in order, for the next call, which the messages
-        still queued will cause (and the message that call delivers joins its topic's held
+        yet: the rest waits in ``_held``, in order, for the next call (a guard condition
+        wakes the executor for it; a message delivered meanwhile joins its topic's held
         ones, behind them). Under sim time nothing is taken: inputs taken ahead of the
         ``/clock`` messages queued with them would meet a clock that lags them (the
         future-stamp check).
@@ -624,6 +635,8 @@ class EstimatorNode(_ParamsMixin, Node):
                 self._held.setdefault(key, []).append((stamp, key, msg))
             else:
                 self._on_input(key, msg)
+        if self._held:
+            self._held_wake.trigger()
 
     def _throttled(self, reason: str, line: str, level: str = "warn") -> None:
         """Log ``line`` unless ``reason`` was logged less than ``input.log_throttle`` ago (wall time)."""
