@@ -505,8 +505,10 @@ class EstimatorNode(_ParamsMixin, Node):
         }
         self._held: dict[str, list[tuple[int, str, Any]]] = {}  # taken, not yet handled (_take_queued)
         # Wakes the executor for another _take_queued while messages are held: the events of
-        # the messages taken early find nothing, so none of them would.
-        self._held_wake = self.create_guard_condition(self._take_held)
+        # the messages taken early find nothing, so none of them would. A timer, reset when
+        # needed and cancelled when it fires (rclpy's EventsExecutor has no guard conditions).
+        self._held_wake = self.create_timer(1e-4, self._take_held)
+        self._held_wake.cancel()
         self._input_subscriptions = [
             (
                 spec.key,
@@ -565,6 +567,7 @@ class EstimatorNode(_ParamsMixin, Node):
         return 0 if self._sim_time_active() else int(self.values["input.take_queued"])
 
     def _take_held(self) -> None:
+        self._held_wake.cancel()
         if self._held:
             self._take_queued(self._take_limit())
 
@@ -603,8 +606,8 @@ class EstimatorNode(_ParamsMixin, Node):
         would break the estimators' pairing of inputs (the quarter car's accelerometers ahead
         of the 1 kHz profile: filter steps without their road). So when a subscription gave
         ``limit`` messages (more may be queued), nothing stamped after its last one is handled
-        yet: the rest waits in ``_held``, in order, for the next call (a guard condition
-        wakes the executor for it; a message delivered meanwhile joins its topic's held
+        yet: the rest waits in ``_held``, in order, for the next call (a timer wakes the
+        executor for it; a message delivered meanwhile joins its topic's held
         ones, behind them). Under sim time nothing is taken: inputs taken ahead of the
         ``/clock`` messages queued with them would meet a clock that lags them (the
         future-stamp check).
@@ -636,7 +639,7 @@ class EstimatorNode(_ParamsMixin, Node):
             else:
                 self._on_input(key, msg)
         if self._held:
-            self._held_wake.trigger()
+            self._held_wake.reset()
 
     def _throttled(self, reason: str, line: str, level: str = "warn") -> None:
         """Log ``line`` unless ``reason`` was logged less than ``input.log_throttle`` ago (wall time)."""
