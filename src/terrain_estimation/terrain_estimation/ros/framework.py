@@ -95,8 +95,16 @@ _wall_time = time.monotonic
 """The clock of the log throttle (wall time: a paused sim clock must not silence the logs)."""
 
 
-def _first(item: tuple[Any, ...]) -> Any:
-    return item[0]
+def _ordered(msg: Any, info: Any, key: str) -> tuple[int, int, str, Any]:
+    """``(stamp ns, reception ns, topic key, msg)`` of an input taken for :meth:`EstimatorNode._take_queued`
+    (``info``: the middleware's MessageInfo of a taken message; None, the executor's delivered one,
+    counts as received first)."""
+    received = int(info["received_timestamp"]) if info is not None else 0
+    return stamp_to_ns(msg.header.stamp), received, key, msg
+
+
+def _order_key(item: tuple[int, int, str, Any]) -> tuple[int, int]:
+    return item[0], item[1]
 
 
 @dataclass(frozen=True)
@@ -503,7 +511,7 @@ class EstimatorNode(_ParamsMixin, Node):
         self._output_publishers = {
             o.key: self.create_publisher(o.msg_type, o.topic, qos_for(o.kind)) for o in self.adapter.outputs
         }
-        self._held: dict[str, list[tuple[int, str, Any]]] = {}  # taken, not yet handled (_take_queued)
+        self._held: dict[str, list[tuple[int, int, str, Any]]] = {}  # taken, not yet handled (_take_queued)
         # Wakes the executor for another _take_queued while messages are held: the events of
         # the messages taken early find nothing, so none of them would. A timer, reset when
         # needed and cancelled when it fires (rclpy's EventsExecutor has no guard conditions).
@@ -556,8 +564,10 @@ class EstimatorNode(_ParamsMixin, Node):
             if not limit and not self._held:
                 self._on_input(key, msg)  # one message per callback
                 return
-            # The delivered message is the next of its topic: after what is held, merged with the rest.
-            self._held.setdefault(key, []).append((stamp_to_ns(msg.header.stamp), key, msg))
+            # The delivered message is the next of its topic: after what is held, merged with the
+            # rest. No MessageInfo (rclpy's EventsExecutor cannot pass it): among equal stamps it
+            # counts as received first, which it was (the executor serves events in arrival order).
+            self._held.setdefault(key, []).append(_ordered(msg, None, key))
             self._take_queued(limit)
 
         return callback
@@ -601,7 +611,8 @@ class EstimatorNode(_ParamsMixin, Node):
         directly costs about half. Under a backlog most messages then come this way; with
         no backlog each input subscription answers one empty take (about 1 µs).
 
-        Order: the topics are merged by stamp, each in its own arrival order (so the input
+        Order: the topics are merged by stamp (equal stamps in the order the middleware
+        received them, as a recording would have logged them), each in its own arrival order (so the input
         checks still see a topic's stamps as they came). A topic handled ahead of the others
         would break the estimators' pairing of inputs (the quarter car's accelerometers ahead
         of the 1 kHz profile: filter steps without their road). So when a subscription gave
@@ -623,7 +634,7 @@ class EstimatorNode(_ParamsMixin, Node):
                         item = sub.handle.take_message(sub.msg_type, sub.raw)
                         if item is None:
                             break
-                        taken.append((stamp_to_ns(item[0].header.stamp), key, item[0]))
+                        taken.append(_ordered(item[0], item[1], key))
                         fresh += 1
             except InvalidHandle:  # the node is being destroyed
                 return
@@ -632,10 +643,11 @@ class EstimatorNode(_ParamsMixin, Node):
             if taken:
                 sequences.append(taken)
         holding = False
-        for stamp, key, msg in heapq.merge(*sequences, key=_first):
+        for item in heapq.merge(*sequences, key=_order_key):
+            stamp, _, key, msg = item
             holding = holding or stamp > horizon  # from here on, in merge order (each topic's order)
             if holding:
-                self._held.setdefault(key, []).append((stamp, key, msg))
+                self._held.setdefault(key, []).append(item)
             else:
                 self._on_input(key, msg)
         if self._held:
