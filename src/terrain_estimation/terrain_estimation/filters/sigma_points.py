@@ -195,9 +195,11 @@ def tria(A: Array) -> Array:  # matrix symbol of the literature
     QR sign convention is arbitrary, so each column is flipped to make the
     diagonal non-negative (a column sign flip leaves ``S Sᵀ`` unchanged).
 
-    The QR is LAPACK ``dgeqrf`` called directly, the routine
-    ``numpy.linalg.qr(mode="r")`` calls (same library, identical ``R``):
-    the square-root filters run three ``tria`` of 5×15 matrices per step,
+    The QR is LAPACK ``dgeqrf`` called directly (scipy's build of it), the
+    routine ``numpy.linalg.qr(mode="r")`` calls in numpy's build: the same
+    ``R`` bit for bit on the filters' matrices (tested up to 40 rows; a
+    threaded BLAS may split larger ones differently in the last bits).
+    The square-root filters run three ``tria`` of 5×15 matrices per step,
     and numpy's wrapper (type dispatch, workspace query, ``triu`` of the
     result) cost ≈ 10 µs of the ≈ 11 µs of each; ``R`` is read from the
     upper triangle through a cached mask instead.
