@@ -182,12 +182,19 @@ class TwoTopicRecorder:
 
 
 @pytest.mark.parametrize("executor_kind", ["single", "events"])
-@pytest.mark.parametrize(("take_queued", "sim_time"), [(0, False), (50, False), (5, False), (50, True)])
-def test_queued_inputs_are_taken_in_stamp_order_and_none_is_lost(rclpy_context, take_queued, sim_time, executor_kind):
+@pytest.mark.parametrize(
+    ("take_queued", "sim_time", "fast_decode"),
+    [(0, False, True), (50, False, True), (5, False, True), (50, True, True), (50, False, False)],
+)
+def test_queued_inputs_are_taken_in_stamp_order_and_none_is_lost(
+    rclpy_context, take_queued, sim_time, fast_decode, executor_kind
+):
     """A burst queued on two topics reaches the adapter whole; with input.take_queued the first
     callback takes the rest, merged by stamp (each topic in its own order), and a take smaller
     than the burst holds back what a later message of the cut topic could precede; with 0, or
-    under sim time (inputs keep their order with /clock), one message per executor callback."""
+    under sim time (inputs keep their order with /clock), one message per executor callback.
+    The same with rclpy decoding the inputs (input.fast_decode false) instead of ros/cdr.py."""
+    from terrain_estimation.ros.cdr import decoder_for
     import time
 
     from terrain_estimation.ros.qos import SENSOR_QOS
@@ -200,9 +207,12 @@ def test_queued_inputs_are_taken_in_stamp_order_and_none_is_lost(rclpy_context, 
         parameter_overrides=[
             Parameter("input.take_queued", value=take_queued),
             Parameter("use_sim_time", value=sim_time),
+            Parameter("input.fast_decode", value=fast_decode),
         ],
         context=rclpy_context,
     )
+    decoders = [decode for _, _, decode in node._input_subscriptions]
+    assert all((d is decoder_for(PointStamped)) == fast_decode for d in decoders)
     source = rclpy.create_node("source", namespace="/veh", context=rclpy_context)
     if executor_kind == "events":  # what spin_node runs
         from rclpy.experimental import EventsExecutor
@@ -247,6 +257,56 @@ def test_queued_inputs_are_taken_in_stamp_order_and_none_is_lost(rclpy_context, 
             assert stamps != sorted(stamps)
             if executor_kind == "single":  # (the events executor runs a topic's ready messages at once)
                 assert first_callback == 1
+    finally:
+        executor.shutdown()
+        source.destroy_node()
+        node.destroy_node()
+
+
+@pytest.mark.parametrize("fast_decode", [True, False])
+@pytest.mark.parametrize("executor_kind", ["single", "events"])
+def test_bytes_that_do_not_decode_are_rejected_and_the_node_goes_on(rclpy_context, fast_decode, executor_kind):
+    """A sample whose bytes are not its topic's type (a corrupt or mistyped publisher) is rejected
+    with a log line and counted; the node keeps running and handles the next messages. rclpy's
+    own take would raise in the executor on such bytes and stop the node."""
+    import time
+
+    from terrain_estimation.ros.qos import SENSOR_QOS
+
+    node = EstimatorNode(
+        "recorder",
+        (),
+        TwoTopicRecorder,
+        namespace="/veh",
+        parameter_overrides=[Parameter("input.fast_decode", value=fast_decode)],
+        context=rclpy_context,
+    )
+    source = rclpy.create_node("source", namespace="/veh", context=rclpy_context)
+    if executor_kind == "events":
+        from rclpy.experimental import EventsExecutor
+
+        executor = EventsExecutor(context=rclpy_context)
+    else:
+        executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    try:
+        pub = source.create_publisher(PointStamped, "fast", SENSOR_QOS)
+        deadline = time.monotonic() + 10.0
+        while pub.get_subscription_count() == 0:
+            assert time.monotonic() < deadline, "the recorder's subscription was not discovered"
+            time.sleep(0.02)
+        good = PointStamped()
+        good.header.stamp = sec_to_stamp(1.0)
+        pub.publish(good)
+        pub.publish(b"\x00\x01\x00\x00\xff")  # serialised bytes, cut short: not a PointStamped
+        good.header.stamp = sec_to_stamp(2.0)
+        pub.publish(good)
+        deadline = time.monotonic() + 10.0
+        while node.messages_handled < 3 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        assert node.messages_handled == 3
+        assert [t for _, t in node.adapter.seen] == [1.0, 2.0]
+        assert node.guard.rejected == {"fast: (serialised message) does not decode as PointStamped": 1}
     finally:
         executor.shutdown()
         source.destroy_node()
