@@ -85,11 +85,13 @@ report (``make bench-load`` writes ``docs/results/robustness.md``).
 from __future__ import annotations
 
 import argparse
+import cProfile
 import dataclasses
 import functools
 import json
 import math
 import os
+import re
 import struct
 import subprocess
 import sys
@@ -431,11 +433,17 @@ def host_main(spec: dict[str, Any]) -> int:
         stop.set()
 
     threading.Thread(target=read_commands, daemon=True).start()
+    profiler = cProfile.Profile() if spec.get("profile") else None
     print("ready", flush=True)
     while not stop.is_set():
         if thread0[0] is None and started.is_set():
             thread0[0] = time.thread_time()
+            if profiler is not None:
+                profiler.enable()
         executor.spin_once(timeout_sec=0.05)
+    if profiler is not None:
+        profiler.disable()
+        profiler.dump_stats(spec["profile"])
     # What is still queued was not lost: take it before counting (until 0.3 s pass without a message).
     handled = -1
     quiet_since = time.monotonic()
@@ -490,6 +498,13 @@ def empty_callback_node(vehicle: str, namespace: str, context: Any) -> Any:
     return node
 
 
+def _profile_path(profile_dir: Path | None, label: str, first: int, processes: int) -> str:
+    if profile_dir is None:
+        return ""
+    name = re.sub(r"[^A-Za-z0-9_.+-]+", "_", label).strip("_")
+    return str(profile_dir / (name + (f".{first}" if processes > 1 else "") + ".pstats"))
+
+
 class _Host:
     """The host subprocess, driven over its stdin/stdout."""
 
@@ -501,6 +516,7 @@ class _Host:
         first: int = 0,
         vehicle: str = "quarter_car",
         empty_callbacks: bool = False,
+        profile: str = "",
     ) -> None:
         # The nodes' log (silent-input warnings once the player stops, …): shown only if the host fails.
         self.log = tempfile.TemporaryFile(mode="w+")
@@ -515,6 +531,7 @@ class _Host:
                 "first": first,
                 "vehicle": vehicle,
                 "empty_callbacks": empty_callbacks,
+                "profile": profile,
             }
         )
         self.proc = subprocess.Popen(
@@ -561,8 +578,12 @@ class _Host:
 # ---------------------------------------------------------------------------
 
 
-def run_case(case: Case, bags_dir: Path = BAGS_DIR) -> dict[str, Any]:
-    """Run one row: start the host, publish, collect, and return its figures."""
+def run_case(case: Case, bags_dir: Path = BAGS_DIR, profile_dir: Path | None = None) -> dict[str, Any]:
+    """Run one row: start the host, publish, collect, and return its figures.
+
+    ``profile_dir``: each host process profiles its executor thread (``cProfile``, from the start
+    of the publication) into ``<profile_dir>/<row label>[.<first vehicle>].pstats``.
+    """
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -613,6 +634,7 @@ def run_case(case: Case, bags_dir: Path = BAGS_DIR) -> dict[str, Any]:
             first,
             case.vehicle,
             case.empty_callbacks,
+            _profile_path(profile_dir, case.label, first, case.processes),
         )
         for first in range(0, case.vehicles, per_host)
     ]
@@ -974,15 +996,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--json", metavar="FILE", help="also write every figure as JSON")
     parser.add_argument("--only", metavar="PREFIX", help="run only the rows whose label starts with PREFIX")
     parser.add_argument("--bags", metavar="DIR", default=str(BAGS_DIR), help="directory of the recorded bags")
+    parser.add_argument(
+        "--profile",
+        metavar="DIR",
+        help="profile each row's executor thread(s) with cProfile into DIR/<row>.pstats "
+        "(read with python -m pstats); the profiler slows the callbacks, so the row's figures are not comparable",
+    )
     parser.add_argument("--host", metavar="SPEC", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.host:
         return host_main(json.loads(args.host))
 
+    profile_dir = Path(args.profile) if args.profile else None
+    if profile_dir is not None:
+        profile_dir.mkdir(parents=True, exist_ok=True)
     selected = [c for c in cases(args.quick) if not args.only or c.label.startswith(args.only)]
     rows = []
     for case in selected:
-        row = run_case(case, Path(args.bags))
+        row = run_case(case, Path(args.bags), profile_dir)
         rows.append(row)
         print(format_table([row]).splitlines()[1], flush=True)
     ceilings = {
