@@ -194,9 +194,9 @@ def test_queued_inputs_are_taken_in_stamp_order_and_none_is_lost(
     than the burst holds back what a later message of the cut topic could precede; with 0, or
     under sim time (inputs keep their order with /clock), one message per executor callback.
     The same with rclpy decoding the inputs (input.fast_decode false) instead of ros/cdr.py."""
-    from terrain_estimation.ros.cdr import decoder_for
     import time
 
+    from terrain_estimation.ros.cdr import decoder_for
     from terrain_estimation.ros.qos import SENSOR_QOS
 
     node = EstimatorNode(

@@ -68,7 +68,7 @@ def _node_run(
     try:
         ns = node.get_namespace()
         keys = {f"{ns}/{spec.topic}": spec.key for spec in node.adapter.inputs}
-        callbacks = {key: node._callback_for(key) for key in keys.values()}
+        callbacks = {key: node._callback_for(key, lambda msg: msg) for key in keys.values()}  # messages, not bytes
         outputs: list[Any] = []
         inner = node.adapter.handle
 

@@ -73,7 +73,7 @@ class GuardedAdapter:
 
 def test_divergence_turns_the_diagnostic_error_then_ok(rclpy_context):
     node = EstimatorNode("guarded", (), GuardedAdapter, namespace="/veh", context=rclpy_context)
-    handle = node._callback_for("value")
+    handle = node._callback_for("value", lambda msg: msg)  # fed messages, not their bytes
     rng = np.random.default_rng(3)
     truth = 0.0
     levels: list[bytes] = []
