@@ -41,7 +41,7 @@ Figures per row:
   1.0 means one vehicle takes one core at real time;
 * **executor thread CPU**: the part of it spent in the thread that spins the
   executor (every callback: input checks, filter, building and publishing the
-  estimates, and rclpy's take and deserialisation of each message), per
+  estimates, rclpy's take of each message and its decoding), per
   simulated second, for the busiest host process. Callbacks run there one at
   a time, so ``1 / this`` is the fastest replay one process can follow,
   whatever the number of cores;
@@ -157,9 +157,9 @@ class Case:
         vehicle: the estimator (``quarter_car``, or for ``"bag"`` rows also
             ``skid_steer`` and ``rover``, replaying :data:`BAG_OF`).
         empty_callbacks: the host runs :func:`empty_callback_node` instead of
-            the estimator: the same subscriptions (topics, types, QoS) with
-            callbacks that only count, so the row measures what delivering the
-            messages to Python costs, the floor under any estimator.
+            the estimator: the same subscriptions (topics, types, QoS, raw) with
+            callbacks that only decode and count, so the row measures what
+            delivering the messages to Python costs, the floor under any estimator.
     """
 
     label: str
@@ -208,7 +208,7 @@ def cases(quick: bool = False) -> list[Case]:
             for x in (0.0, 20.0)
             for ex in (("events", "events+take") if (v, x) == ("skid_steer", 20.0) else ("events+take",))
         ),
-        # The floor: the same inputs into callbacks that do nothing.
+        # The floor: the same inputs into callbacks that only decode them.
         *(
             Case(
                 f"(f) {'' if v == 'quarter_car' else v + ' '}bag 20x events, empty callbacks",
@@ -419,7 +419,7 @@ def host_main(spec: dict[str, Any]) -> int:
     stop = threading.Event()
     cpu0 = [time.process_time()]
     started = threading.Event()
-    # The executor thread's own CPU (the callbacks, rclpy's take and deserialisation): read in
+    # The executor thread's own CPU (the callbacks, rclpy's take, the decoding): read in
     # that thread, from the first spin after "start".
     thread0: list[float | None] = [None]
 
@@ -470,12 +470,14 @@ def host_main(spec: dict[str, Any]) -> int:
 
 def empty_callback_node(vehicle: str, namespace: str, context: Any) -> Any:
     """A node with the subscriptions (and estimate publishers) of ``vehicle``'s estimator node under
-    ``namespace`` whose callbacks only count (``messages_handled``): what rclpy and the middleware
-    cost per message before any estimator code runs. The estimate publishers never publish; they
-    let the collector's discovery finish."""
+    ``namespace`` whose callbacks only decode the bytes as the node does (:mod:`~terrain_estimation.ros.cdr`)
+    and count (``messages_handled``): what rclpy, the middleware and the decoding cost per message
+    before any estimator code runs. The estimate publishers never publish; they let the collector's
+    discovery finish."""
     from rclpy.node import Node
 
     from terrain_estimation.ros import framework
+    from terrain_estimation.ros.cdr import decoder_for
     from terrain_estimation.vehicles import estimator_parameters, get_vehicle
 
     entry = get_vehicle(vehicle)
@@ -484,15 +486,21 @@ def empty_callback_node(vehicle: str, namespace: str, context: Any) -> Any:
     node = Node("empty_callbacks", namespace=namespace, context=context)
     node.messages_handled = 0  # type: ignore[attr-defined]
 
-    def count(msg: Any) -> None:
-        node.messages_handled += 1  # type: ignore[attr-defined]
+    def counter(decode: Any) -> Any:
+        def count(data: bytes) -> None:
+            decode(data)
+            node.messages_handled += 1  # type: ignore[attr-defined]
+
+        return count
 
     # framework.qos_for and the node's depth parameter, as EstimatorNode subscribes (and as the
     # bench's deep-queue rows patch it).
     depth = int(values["qos.sensor_depth"])
     qos_for = framework.qos_for
     for spec in adapter.inputs:
-        node.create_subscription(spec.msg_type, spec.topic, count, qos_for(spec.kind, depth))
+        decode = decoder_for(spec.msg_type)
+        assert decode is not None, spec.msg_type  # every input type has one (test_cdr)
+        node.create_subscription(spec.msg_type, spec.topic, counter(decode), qos_for(spec.kind, depth), raw=True)
     for spec in adapter.outputs:
         node.create_publisher(spec.msg_type, spec.topic, qos_for(spec.kind))
     return node
@@ -865,7 +873,7 @@ def _verdicts(rows: Sequence[dict[str, Any]], cpus: int | None = None) -> list[s
             offered = r["offered_x_real_time"]
             per_message_us = 1e6 * r["executor_cpu_per_sim_s"] * r["sim_s"] / max(r["consumed"], 1)
             out.append(
-                f"- {r['row']}: message delivery alone (callbacks that only count), at {offered:.1f}x "
+                f"- {r['row']}: message delivery alone (callbacks that only decode and count), at {offered:.1f}x "
                 f"offered: {r['dropped']} of {r['published']} dropped; the executor thread needs "
                 f"{r['executor_cpu_per_sim_s'] * offered:.2f} CPU s per wall s ({per_message_us:.0f} us per "
                 f"message), the process {r['cpu_per_vehicle_per_sim_s'] * r['vehicles'] * offered:.2f}, "
