@@ -3,14 +3,22 @@
 The per-step cost of the quarter-car / LRV estimator was cut by calling
 LAPACK directly (``tria``, the ``R_eff`` Cholesky), running the two Taylor
 series of ``discretise`` as one stacked recursion, converting only the
-profile samples a step reads, and computing the median spacing on the list.
+profile samples a step reads, and computing the median spacing on the list;
+then by the SCKF's unchecked entries for the estimator (``_predict_fast``,
+``_update_fast``), one discretisation shared by ``f`` and the process noise
+(``_propagate``), the no-fit road
+weights and the gap search read off the buffer list, the ḣ-window and
+waiting-step caches and the adapter's pairing early-out.
 Each of those is meant to reproduce the former computation bit for bit; these
-tests hold them to it (``np.array_equal``, not a tolerance) against the
-straightforward forms they replaced.
+tests hold them to it (``np.array_equal`` or exact equality, not a
+tolerance) against the straightforward forms they replaced, written out here
+(the SCKF as first written included).
 """
 
 from __future__ import annotations
 
+import bisect
+import dataclasses
 import math
 from typing import Any
 
@@ -21,14 +29,18 @@ from terrain_estimation.estimators.soil_stiffness import (
     SoilStiffnessEstimator,
     SoilStiffnessEstimatorConfig,
     _fit_weights,
+    _grid_offsets,
     _local_quadratic,
 )
-from terrain_estimation.filters.sigma_points import tria
+from terrain_estimation.filters.base import SqrtGaussianState, UpdateInfo
+from terrain_estimation.filters.sckf import SquareRootCubatureKalmanFilter
+from terrain_estimation.filters.sigma_points import _tria_rows, solve_lower, tria
 from terrain_estimation.models.quarter_car import (
     LRVModel,
     LRVParams,
     QuarterCarModel,
     QuarterCarParams,
+    StepInput,
     _clip,
     discretise,
 )
@@ -96,6 +108,16 @@ def test_stacked_taylor_series_equals_two_horner_recursions(vehicle: str) -> Non
             phi_ref, gam_ref = _discretise_reference(batch, delta)
             assert phi.shape == phi_ref.shape and gam.shape == gam_ref.shape
             assert np.array_equal(phi, phi_ref) and np.array_equal(gam, gam_ref)
+
+
+def test_large_batches_use_broadcast_operands_with_the_same_result() -> None:
+    """Above the materialising limit the Horner operands are broadcast views: the same series."""
+    model = QuarterCarModel()
+    rng = np.random.default_rng(RNG_SEED + 5)
+    a = model._a0 + rng.uniform(1e2, 1.75e5, size=2000)[:, None, None] * model._e
+    phi, gam = discretise(a, 1e-3, "taylor4")
+    phi_ref, gam_ref = _discretise_reference(a, 1e-3)
+    assert np.array_equal(phi, phi_ref) and np.array_equal(gam, gam_ref)
 
 
 @pytest.mark.parametrize("state", ["k_tot", "log_k_s"])
@@ -235,3 +257,589 @@ def test_measurement_noise_factor_is_the_cholesky_factor_and_raises_on_indefinit
             assert np.array_equal(est._measurement_noise_sqrt(x, rows, sigma), expected)
     with pytest.raises(np.linalg.LinAlgError, match="not positive definite"):
         est._measurement_noise_sqrt(x, 2, np.array([[-1.0, 0.0], [0.0, 0.0]]))
+
+
+# ---------------------------------------------------------------------------
+# The SCKF's unchecked entries, the fused discretisation and the per-step
+# shortcuts of the estimator and its adapter (all bit for bit).
+# ---------------------------------------------------------------------------
+
+
+def _noise_reference(model: Any, x: np.ndarray, dt: float) -> np.ndarray:
+    """``process_noise_sqrt`` as first written: its own discretisation at the mean's k_tot."""
+    k_c = float(model.ktot_of(float(x[-1])))
+    _, gam = _discretise_reference(model._a0 + k_c * model._e, dt)
+    lq = math.sqrt(dt) * (gam @ model._g) * model._sigma_q
+    lq[:, -1] = 0.0
+    if model.stiffness_state == "log_k_s":
+        lq[-1, -1] = np.sqrt(model._q_log_ks_per_step * dt / model._ktot_step_dt)
+    elif model._noise_form == "per_step":
+        lq[-1, -1] = np.sqrt(model._q_ktot_per_step * dt / model._ktot_step_dt)
+    else:
+        lq[-1, -1] = np.sqrt(dt) * dt * model._sigma_q[-1]
+    return lq
+
+
+def _f_reference(model: Any, pts: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+    phi, gam = _discretise_reference(model.A(pts), dt / u.size)
+    gb = gam @ model.B
+    y = pts.copy()
+    for uj in u:
+        y = (phi @ y[:, :, None])[:, :, 0] + gb * uj
+    y[:, -1] = pts[:, -1]
+    return y
+
+
+def _models() -> list[Any]:
+    return [
+        QuarterCarModel(QuarterCarParams(stiffness_state="k_tot")),
+        QuarterCarModel(QuarterCarParams(stiffness_state="log_k_s")),
+        QuarterCarModel(QuarterCarParams(ktot_noise_form="printed")),
+        LRVModel(LRVParams(relative_damper=True, stiffness_state="log_k_s")),
+        LRVModel(LRVParams(relative_damper=False, stiffness_state="k_tot")),
+    ]
+
+
+def _random_point_set(model: Any, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    n = model.state_dim
+    x = rng.standard_normal(n) * 0.01
+    x[-1] = rng.uniform(1e3, 1.7e5) if model.stiffness_state == "k_tot" else rng.uniform(-5.0, 5.0)
+    spread = np.full(n, 0.01)
+    spread[-1] = 3e4 if model.stiffness_state == "k_tot" else 0.5
+    return x, x + rng.standard_normal((2 * n, n)) * spread
+
+
+@pytest.mark.parametrize("index", range(5))
+def test_propagate_is_f_and_the_process_noise_factor(index: int) -> None:
+    """One shared (m + 1) discretisation gives f's points and √Q_k of the mean, bit for bit.
+
+    Step lengths repeat (noise-cache hits) and change; the cache's factor
+    is checked afterwards through the public method too.
+    """
+    model = _models()[index]
+    rng = np.random.default_rng(RNG_SEED + 10 + index)
+    dts = [0.010000000000000009, 0.009999999999999787, 0.0107, 0.003]
+    for i in range(120):
+        x, pts = _random_point_set(model, rng)
+        if i % 7 == 3:
+            x[-1] = model._noise_cache[1] if model.stiffness_state == "k_tot" and model._noise_cache else x[-1]
+        u = rng.standard_normal(int(rng.integers(1, 14))) * 0.05
+        dt = dts[i % len(dts)]
+        pts_before = pts.copy()
+        y, lq = model._propagate(pts, x, u, dt)
+        assert np.array_equal(pts, pts_before)
+        assert np.array_equal(y, _f_reference(model, pts, u, dt))
+        assert np.array_equal(lq, _noise_reference(model, x, dt))
+        assert np.array_equal(model.process_noise_sqrt(x, u, dt), lq)
+        assert np.array_equal(model.f(pts, u, dt), y)
+
+
+def test_propagate_with_expm_calls_the_two_methods() -> None:
+    model = QuarterCarModel(QuarterCarParams(discretisation="expm"))
+    rng = np.random.default_rng(RNG_SEED + 20)
+    x, pts = _random_point_set(model, rng)
+    u = rng.standard_normal(10) * 0.05
+    y, lq = model._propagate(pts, x, u, 0.01)
+    fresh = QuarterCarModel(QuarterCarParams(discretisation="expm"))
+    assert np.array_equal(y, fresh.f(pts, u, 0.01))
+    assert np.array_equal(lq, fresh.process_noise_sqrt(x, u, 0.01))
+
+
+class _ReferenceSCKF(SquareRootCubatureKalmanFilter):
+    """The SCKF's predict/update as first written (eqs. 14–28, public checks, numpy's QR)."""
+
+    def predict(self, state: Any, model: Any, u: Any, dt: float, *, process_noise_sqrt: Any = None) -> Any:
+        n = model.state_dim
+        x = np.asarray(state.x, dtype=float)
+        S = np.asarray(state.S, dtype=float)  # noqa: N806
+        L = np.asarray(model.process_noise_sqrt(x, u, dt), dtype=float)  # noqa: N806
+        unit = np.vstack([np.sqrt(n) * np.eye(n), -np.sqrt(n) * np.eye(n)])
+        X = x + unit @ S.T  # noqa: N806
+        Xs = np.asarray(model.f(X, u, dt), dtype=float)  # noqa: N806
+        if not np.isfinite(Xs).all():
+            raise ValueError("model.f returned non-finite values")
+        x_pred = np.full(2 * n, 1.0 / (2 * n)) @ Xs
+        chi = (Xs - x_pred) * (1.0 / math.sqrt(2 * n))
+        return SqrtGaussianState(x=x_pred, S=_tria_reference(np.concatenate((chi, L.T)).T))
+
+    def update(self, state: Any, z: Any, model: Any, u: Any = None, *, measurement_noise_sqrt: Any = None) -> Any:
+        n, p = model.state_dim, model.measurement_dim
+        x = np.asarray(state.x, dtype=float)
+        S = np.asarray(state.S, dtype=float)  # noqa: N806
+        zv = np.asarray(z, dtype=float)
+        Rs = np.asarray(  # noqa: N806
+            model.measurement_noise_sqrt() if measurement_noise_sqrt is None else measurement_noise_sqrt, dtype=float
+        )
+        unit = np.vstack([np.sqrt(n) * np.eye(n), -np.sqrt(n) * np.eye(n)])
+        c = 1.0 / math.sqrt(2 * n)
+        dX = unit @ S.T  # noqa: N806
+        Z = np.asarray(model.h(x + dX, u), dtype=float)  # noqa: N806
+        assert Z.shape == (2 * n, p)
+        if not np.isfinite(Z).all():
+            raise ValueError("model.h returned non-finite values")
+        z_hat = np.full(2 * n, 1.0 / (2 * n)) @ Z
+        Zc_t = (Z - z_hat) * c  # noqa: N806
+        S_z = _tria_reference(np.concatenate((Zc_t, Rs.T)).T)  # noqa: N806
+        chi_t = dX * c
+        P_xz = chi_t.T @ Zc_t  # noqa: N806
+        nu = zv - z_hat
+        A = solve_lower(S_z, np.concatenate((P_xz.T, nu[:, None]), axis=1))  # noqa: N806
+        nis = float(A[:, n] @ A[:, n])
+        if not S_z.diagonal().all():
+            nis = float("inf")
+        if not (np.isfinite(nis) and (self.gate_threshold is None or nis <= self.gate_threshold)):
+            return state, UpdateInfo(innovation=nu, innovation_cov=S_z @ S_z.T, nis=nis, accepted=False)
+        W_t = solve_lower(S_z, A[:, :n], transpose=True)  # noqa: N806
+        x_post = x + nu @ W_t
+        S_post = _tria_reference(np.concatenate((chi_t - Zc_t @ W_t, Rs.T @ W_t)).T)  # noqa: N806
+        info = UpdateInfo(innovation=nu, innovation_cov=S_z @ S_z.T, nis=nis, accepted=True)
+        return SqrtGaussianState(x=x_post, S=S_post), info
+
+
+@pytest.mark.parametrize("index", range(5))
+@pytest.mark.parametrize("gate", [None, 3.0])
+def test_sckf_fast_entries_equal_the_reference_filter(index: int, gate: float | None) -> None:
+    """_predict_fast/_update_fast against the SCKF as first written and against the public methods."""
+    model = _models()[index]
+    fast = SquareRootCubatureKalmanFilter(gate_threshold=gate)
+    ref = _ReferenceSCKF(gate_threshold=gate)
+    rng = np.random.default_rng(RNG_SEED + 30 + index)
+    n, p = model.state_dim, model.measurement_dim
+    rejected = accepted = 0
+    for _ in range(60):
+        x, _ = _random_point_set(model, rng)
+        p0 = np.diag(np.abs(rng.standard_normal(n)) * 1e-4)
+        p0[-1, -1] = 1e8 if model.stiffness_state == "k_tot" else 0.3
+        state = fast.initial_state(x, p0)
+        hdot = rng.standard_normal(10) * 0.05
+        u = StepInput(hdot, float(rng.standard_normal())) if rng.random() < 0.5 else hdot
+        dt = 0.01
+        x_pred, S_pred = fast._predict_fast(state.x, state.S, model._propagate, u, dt)  # noqa: N806
+        fresh = type(model)(model.params)
+        prior = ref.predict(state, fresh, u, dt)
+        assert np.array_equal(x_pred, prior.x) and np.array_equal(S_pred, prior.S)
+        public = fast.predict(state, type(model)(model.params), u, dt)
+        assert np.array_equal(public.x, prior.x) and np.array_equal(public.S, prior.S)
+        z = rng.standard_normal(p) * 3.0
+        rs = None if rng.random() < 0.3 else np.linalg.cholesky(np.diag(rng.uniform(0.3, 1.0, p)))
+        nis, post = fast._update_fast(
+            x_pred, S_pred, z, model.h, u, model.measurement_noise_sqrt() if rs is None else rs
+        )
+        ref_post, info = ref.update(prior, z, model, u, measurement_noise_sqrt=rs)
+        assert nis == info.nis and (post is not None) == info.accepted
+        pub_post, pub_info = fast.update(prior, z, model, u, measurement_noise_sqrt=rs)
+        assert pub_info.nis == info.nis and pub_info.accepted == info.accepted
+        assert np.array_equal(pub_info.innovation_cov, info.innovation_cov)
+        if post is None:
+            rejected += 1
+            assert pub_post is prior
+        else:
+            accepted += 1
+            assert np.array_equal(post[0], ref_post.x) and np.array_equal(post[1], ref_post.S)
+            assert np.array_equal(pub_post.x, ref_post.x) and np.array_equal(pub_post.S, ref_post.S)
+    assert accepted > 0 and (gate is None or rejected > 0)
+
+
+class _OverflowingModel(QuarterCarModel):
+    """f overflows on one point (the filters' cue to fail the step)."""
+
+    def f(self, x: Any, u: Any, dt: float) -> Any:
+        y = super().f(x, u, dt)
+        y[3, 1] = np.inf
+        return y
+
+    def _propagate(self, pts: Any, x_mean: Any, u: Any, dt: float) -> tuple[Any, Any]:
+        return self.f(pts, u, dt), self.process_noise_sqrt(x_mean, u, dt)
+
+
+def test_sckf_fast_predict_raises_on_non_finite_points_as_predict() -> None:
+    model = _OverflowingModel()
+    filt = SquareRootCubatureKalmanFilter()
+    state = filt.initial_state(np.array([0.0, 0.0, 0.0, 0.0, 8e4]), np.diag([1e-4, 1e-2, 1e-4, 1e-2, 1e8]))
+    u = np.zeros(10)
+    with pytest.raises(ValueError, match="non-finite"):
+        filt.predict(state, model, u, 0.01)
+    with pytest.raises(ValueError, match="non-finite"):
+        filt._predict_fast(state.x, state.S, model._propagate, u, 0.01)
+
+
+def _estimate_key(e: Any) -> tuple[Any, ...]:
+    """An estimate as exact values (floats by their bits)."""
+    out = []
+    for v in dataclasses.astuple(e):
+        if isinstance(v, tuple):
+            out.append(tuple(float(w).hex() for w in v))
+        elif isinstance(v, float):
+            out.append(v.hex())
+        else:
+            out.append(v)
+    return tuple(out)
+
+
+def _run_stream(est: SoilStiffnessEstimator, events: list[tuple[Any, ...]]) -> list[Any]:
+    """Feed events; the return of every call, the drained estimates, the counters and the state."""
+    out: list[Any] = []
+    for ev in events:
+        if ev[0] == "p":
+            r = est.add_profile_sample(*ev[1:])
+        else:
+            r = est.add_accelerations(*ev[1:])
+        out.append(None if r is None else _estimate_key(r))
+        drained = est.drain_estimates()
+        if drained:
+            out.append([_estimate_key(e) for e in drained])
+    out.append(est.counters)
+    return out
+
+
+def _stream(seed: int, vehicle: str, *, hostile: bool, seconds: float = 3.0) -> list[tuple[Any, ...]]:
+    """A road at 1 kHz (jittered, with gaps) and accelerometers at 100–500 Hz, merged by stamp.
+
+    The accelerations follow a stiff soil loosely (enough for the filter to
+    converge and the change detector to run); ``hostile`` adds huge,
+    non-finite and out-of-order samples, a long IMU gap and a wheel
+    accelerometer that goes missing.
+    """
+    rng = np.random.default_rng(seed)
+    events: list[tuple[Any, ...]] = []
+    t = 0.0
+    speed = 2.0 if vehicle == "lrv" else 10.0
+    while t < seconds + 0.1:
+        t += 1e-3 * rng.uniform(0.9, 1.1)
+        if hostile and 1.2 < t < 1.26:
+            continue  # profile gap: predict-only steps
+        h = 0.01 * math.sin(7.0 * t) + 0.003 * math.sin(41.0 * t) + 1e-4 * rng.standard_normal()
+        if hostile and rng.random() < 0.002:
+            h = float(rng.choice([math.nan, 1e300, -math.inf]))
+        events.append((t, 0, ("p", t, speed * t, h)))
+    acc_period = 0.002 if vehicle == "lrv" else 0.01
+    ta = 0.0
+    count = 0
+    while ta < seconds:
+        ta += acc_period
+        count += 1
+        if hostile and 2.0 < ta < 2.7:
+            continue  # longer than max_step: a restart
+        fb = 9.80665 + 2.0 * math.sin(7.0 * ta + 0.3) + 0.7 * rng.standard_normal()
+        fw: float | None = 9.80665 + 20.0 * math.sin(41.0 * ta) + 0.7 * rng.standard_normal()
+        if hostile:
+            r = rng.random()
+            if r < 0.02:
+                fw = None
+            elif r < 0.03:
+                fb = float(rng.choice([math.nan, 1e300, -1e300, math.inf]))
+            elif r < 0.035:
+                fw = 1e300
+            if count % 97 == 50:
+                fb = math.nan
+        stamp = ta - (0.02 if hostile and rng.random() < 0.01 else 0.0)  # out of order
+        events.append((stamp + 0.003 * rng.random(), 1, ("a", stamp, fb, fw)))
+    events.sort(key=lambda e: (e[0], e[1]))
+    return [e[2] for e in events]
+
+
+_STREAM_CONFIGS = [
+    ("quarter_car", {}),
+    ("quarter_car", {"quarter_car": QuarterCarParams(stiffness_state="log_k_s")}),
+    ("quarter_car", {"gate_threshold": 12.0, "profile_noise_std": 0.0}),
+    ("lrv", {"lrv": LRVParams(relative_damper=True, stiffness_state="log_k_s")}),
+    ("lrv", {"lrv": LRVParams(relative_damper=True), "profile_smoothing_s": 0.006, "hdot_window_m": 0.0}),
+    ("quarter_car", {"profile_smoothing_s": 0.006, "change_threshold": 3.0}),
+]
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+@pytest.mark.parametrize("hostile", [False, True])
+@pytest.mark.parametrize("case", range(len(_STREAM_CONFIGS)))
+def test_estimator_fast_step_equals_the_reference_filter(case: int, hostile: bool) -> None:
+    """The default SCKF's unchecked step gives, call by call, what the SCKF as first written gives."""
+    vehicle, extra = _STREAM_CONFIGS[case]
+    cfg = SoilStiffnessEstimatorConfig(vehicle=vehicle, **extra)
+    events = _stream(RNG_SEED + 40 + case, vehicle, hostile=hostile)
+    fast = SoilStiffnessEstimator(cfg)
+    assert fast._sckf is fast.filter
+    ref = SoilStiffnessEstimator(cfg, filter_impl=_ReferenceSCKF(gate_threshold=None))
+    assert ref._sckf is None
+    got, want = _run_stream(fast, events), _run_stream(ref, events)
+    assert got == want
+    c = fast.counters
+    assert c.updates_accepted > 5
+    if "gate_threshold" in extra:
+        assert c.gated > 0
+    if hostile:
+        assert c.predict_only > 0 and c.restarts > 0 and c.dropped_nonfinite > 0
+
+
+def test_estimator_change_detector_runs_in_the_compared_streams() -> None:
+    """The CUSUM branch (converged, accepted updates) is part of what the stream comparison covers."""
+    cfg = SoilStiffnessEstimatorConfig(change_threshold=3.0, profile_smoothing_s=0.006)
+    est = SoilStiffnessEstimator(cfg)
+    _run_stream(est, _stream(RNG_SEED + 45, "quarter_car", hostile=False))
+    assert est._was_converged or est.counters.soil_changes > 0
+
+
+def _road_reference_full(est: SoilStiffnessEstimator, t: float, u_sub: np.ndarray, delta: float) -> tuple[Any, ...]:
+    """``_road_at_measurement`` without a ḣ fit, as first written (window arrays, searchsorted)."""
+    pt_all = est._pt
+    lo = max(bisect.bisect_left(pt_all, t) - 2, 0)
+    hi = bisect.bisect_right(pt_all, t, lo) + 2
+    pt = np.array(pt_all[lo:hi])
+    var = est.config.profile_noise_std**2
+    if t > pt[-1]:
+        if pt.size >= 2:
+            beta = (t - pt[-1]) / (pt[-1] - pt[-2])
+            w_h = np.array([-beta, 1.0 + beta])
+        else:
+            w_h = np.ones(1)
+    else:
+        i = int(pt.searchsorted(t, side="right"))
+        if i >= pt.size or i == 0:
+            w_h = np.ones(1)
+        else:
+            a = (t - pt[i - 1]) / (pt[i] - pt[i - 1])
+            w_h = np.array([1.0 - a, a])
+    var_h = var * float(w_h @ w_h)
+    var_d = 6.5 * var_h / delta**2 if u_sub.size >= 2 else 2.0 * var_h / delta**2
+    cov = (1.5 if u_sub.size >= 2 else 1.0) * var_h / delta
+    return None, np.array([[var_h, cov], [cov, var_d]])
+
+
+@pytest.mark.parametrize("count", [1, 2, 300])
+def test_road_at_measurement_without_fit_reads_the_list_as_the_window(count: int) -> None:
+    est = _filled_estimator(SoilStiffnessEstimatorConfig(), count, RNG_SEED + 60)
+    pt = est._pt
+    rng = np.random.default_rng(RNG_SEED + 61)
+    times = [pt[0] - 1e-3, pt[0], pt[-1], pt[-1] + 2e-3, *pt[:: max(1, count // 20)]]
+    times += list(rng.uniform(pt[0] - 0.002, pt[-1] + 0.002, size=50))
+    for t in times:
+        for u_sub in (rng.standard_normal(10), rng.standard_normal(1)):
+            hdot, sigma = est._road_at_measurement(float(t), u_sub, 1e-3)
+            _, sigma_ref = _road_reference_full(est, float(t), u_sub, 1e-3)
+            assert hdot is None and np.array_equal(sigma, sigma_ref)
+
+
+def test_measurement_noise_factor_with_a_fed_through_road_error() -> None:
+    """LRV with the relative damper (g_ḣ ≠ 0): the constant gain column is filled in as before."""
+    est = SoilStiffnessEstimator(SoilStiffnessEstimatorConfig(vehicle="lrv", lrv=LRVParams(relative_damper=True)))
+    rng = np.random.default_rng(RNG_SEED + 70)
+    for _ in range(50):
+        x = np.array([0.001, 0.01, rng.uniform(1e3, 1.4e4)])
+        b = rng.standard_normal((2, 2)) * 1e-4
+        sigma = b @ b.T
+        g_h, g_d = est.model.profile_error_gains(x)
+        assert g_d[0] != 0.0
+        gain = np.stack([g_h, g_d], axis=1)
+        rs = est.model.measurement_noise_sqrt()
+        r_eff = rs @ rs.T + gain @ sigma @ gain.T
+        assert np.array_equal(est._measurement_noise_sqrt(x, 1, sigma), np.linalg.cholesky(0.5 * (r_eff + r_eff.T)))
+
+
+def test_grid_offsets_are_the_step_grid() -> None:
+    rng = np.random.default_rng(RNG_SEED + 80)
+    for _ in range(200):
+        t_prev = float(rng.uniform(0.0, 1e4))
+        dt = float(rng.choice([0.010000000000000009, 0.009999999999999787, rng.uniform(0.001, 0.5)]))
+        n_sub = max(1, math.ceil(dt * 1000.0 - 1e-6))
+        assert np.array_equal(t_prev + _grid_offsets(dt, n_sub), t_prev + dt * np.arange(n_sub + 1) / n_sub)
+
+
+def _half_window_reference(est: SoilStiffnessEstimator, t: float) -> float:
+    """``_hdot_half_window`` as first written (no cache)."""
+    if not est._hdot_fit:
+        return 0.0
+    pt = est._pt
+    i1 = bisect.bisect_right(pt, t) - 1
+    i0 = bisect.bisect_left(pt, t - 0.05)
+    if i1 <= i0:
+        return 0.05
+    v = abs(est._ps[i1] - est._ps[i0]) / (pt[i1] - pt[i0])
+    return min(0.5 * est.config.hdot_window_m / v, 0.05) if math.isfinite(v) and v > 0.0 else 0.05
+
+
+class _NoWaitSkip(SoilStiffnessEstimator):
+    """The estimator re-examining its queue on every profile sample (the former behaviour)."""
+
+    def _process_pending(self) -> Any:
+        produced = super()._process_pending()
+        self._profile_wait = -math.inf
+        return produced
+
+    def _hdot_half_window(self, t: float) -> float:
+        value = super()._hdot_half_window(t)
+        assert value == _half_window_reference(self, t)
+        self._half_window_cache = (math.nan, 0.0)
+        return value
+
+
+@pytest.mark.parametrize("case", [0, 3, 4])
+def test_waiting_step_and_half_window_caches_change_nothing(case: int) -> None:
+    """The profile-wait skip and the ḣ window cache: the same estimates, returned by the same calls.
+
+    The accelerometers run ahead of the profile in bursts, so steps wait
+    for the road over several profile samples (the LRV's ḣ window needs
+    15 ms past the step); the reference re-examines the queue every time.
+    """
+    vehicle, extra = _STREAM_CONFIGS[case]
+    cfg = SoilStiffnessEstimatorConfig(vehicle=vehicle, **extra)
+    events = _stream(RNG_SEED + 90 + case, vehicle, hostile=False, seconds=2.0)
+    # Deliver the accelerometers up to 40 ms early: steps then wait for the road.
+    shifted = []
+    for i, ev in enumerate(events):
+        key = ev[1] - (0.04 * ((i // 7) % 3) / 2.0 if ev[0] == "a" else 0.0)
+        shifted.append((key, i, ev))
+    events = [e for _, _, e in sorted(shifted)]
+    fast, ref = SoilStiffnessEstimator(cfg), _NoWaitSkip(cfg)
+    got, want = _run_stream(fast, events), _run_stream(ref, events)
+    assert got == want
+    assert fast.counters.updates_accepted > 100
+    # the skip was taken (some profile samples found the queue head waiting)
+    skipped = 0
+    probe = SoilStiffnessEstimator(cfg)
+    for ev in events:
+        if ev[0] == "p" and probe._pending and ev[1] < probe._profile_wait:
+            skipped += 1
+        (probe.add_profile_sample if ev[0] == "p" else probe.add_accelerations)(*ev[1:])
+    assert skipped > 0
+
+
+def _flush_before_reference(adapter: Any, stamp_ns: int) -> None:
+    """``SoilStiffnessAdapter._flush_before`` as first written (no early return)."""
+    for t in sorted(t for t in adapter._body if t < stamp_ns):
+        adapter.health.reject("imu/wheel: no sample with the body stamp (body-only update)")
+        adapter.estimator.add_accelerations(t * 1e-9, adapter._body.pop(t), None)
+    for t in [t for t in adapter._wheel if t < stamp_ns]:
+        adapter.health.reject("imu/wheel: no body sample with its stamp (dropped)")
+        del adapter._wheel[t]
+
+
+def _drain_reference(adapter: Any) -> list[Any]:
+    """``SoilStiffnessAdapter._drain`` as first written (the gappy window summed, the counters object)."""
+    from terrain_estimation.ros import soil_stiffness as ros
+
+    estimates = adapter.estimator.drain_estimates()
+    h = adapter.health
+    for e in estimates:
+        h.updates += 1
+        h.last_update_time = e.t
+        if e.accepted:
+            h.nis.append(e.nis)
+        adapter._profile_gappy.append(e.profile_gap_ratio > ros.PROFILE_GAP_RATIO_WARN)
+    if estimates:
+        last = estimates[-1]
+        c = adapter.estimator.counters
+        h.status = f"k_s {last.k_s / 1e3:.1f} kN/m, {last.terrain_class} ({last.class_confidence:.2f})" + (
+            ", converged" if last.converged else ", converging"
+        )
+        gappy = sum(adapter._profile_gappy)
+        n = len(adapter._profile_gappy)
+        h.warnings = (
+            [
+                f"terrain/profile: {gappy} of the last {n} steps lost profile samples (gap > "
+                f"{ros.PROFILE_GAP_RATIO_WARN:g}x the sample spacing): the road between steps is interpolated "
+                "and k_s biased; the node is not keeping up with the profiler, or the sensor drops samples"
+            ]
+            if gappy > ros.PROFILE_GAPPY_FRACTION_WARN * n
+            else []
+        )
+        h.values.update(
+            k_s=last.k_s,
+            profile_gappy_steps=gappy,
+            k_s_std=math.sqrt(last.k_s_variance),
+            terrain_class=last.terrain_class,
+            travel_speed=adapter.travel_speed,
+            soil_changes=c.soil_changes,
+            restarts=c.restarts,
+            gated=c.gated,
+            dropped_nonfinite=c.dropped_nonfinite,
+            dropped_out_of_order=c.dropped_out_of_order,
+            dropped_no_profile=c.dropped_no_profile,
+            profile_rejected=c.profile_rejected,
+            divergences=c.divergences,
+        )
+    fault = adapter.estimator.fault
+    h.errors = ros.divergence_errors(fault, adapter.estimator.counters.divergences) if fault else []
+    return estimates
+
+
+def _adapter_messages(seed: int) -> list[tuple[str, Any]]:
+    """Quarter-car input messages: 1 kHz profile, paired IMUs with lost, late and unpaired samples."""
+    from geometry_msgs.msg import PointStamped
+    from sensor_msgs.msg import Imu, JointState
+
+    from terrain_estimation.ros.time import sec_to_stamp
+
+    rng = np.random.default_rng(seed)
+    timed: list[tuple[float, int, str, Any]] = []
+    for i in range(1, 2500):
+        t = i * 1e-3
+        if (i // 100) % 4 == 1 and i % 100 < 6:
+            continue  # lost profile samples: steps with gaps (the diagnostics' gappy window)
+        m = PointStamped()
+        m.header.stamp = sec_to_stamp(t)
+        m.point.x, m.point.z = 10.0 * t, 0.01 * math.sin(7.0 * t) + 1e-4 * float(rng.standard_normal())
+        timed.append((t, 0, "profile", m))
+    for i in range(1, 240):
+        t = i * 1e-2
+        for key, z in (("imu_body", 9.8 + math.sin(7.0 * t)), ("imu_wheel", 9.8 + 10.0 * math.sin(41.0 * t))):
+            r = rng.random()
+            if r < 0.08:
+                continue  # lost: the partner waits, then goes alone (body) or is dropped (wheel)
+            m = Imu()
+            m.header.stamp = sec_to_stamp(t)
+            m.linear_acceleration.z = z + 0.5 * float(rng.standard_normal())
+            delay = 0.06 if r < 0.12 else 0.001 * rng.random()  # late beyond the pair timeout
+            timed.append((t + delay, 1, key, m))
+        j = JointState()
+        j.header.stamp = sec_to_stamp(t)
+        j.name, j.velocity = ["wheel"], [25.0]
+        timed.append((t + 0.0005, 2, "joint_states", j))
+    timed.sort(key=lambda e: (e[0], e[1]))
+    return [(key, msg) for _, _, key, msg in timed]
+
+
+def test_adapter_pairing_and_drain_shortcuts_change_nothing() -> None:
+    """The adapter's early-out pairing flush and drain: the same estimates, rejections and status."""
+    from terrain_estimation.ros.soil_stiffness import make_adapter
+    from terrain_estimation.tools.estimate import numeric_fields
+    from terrain_estimation.vehicles import estimator_parameters, get_vehicle
+
+    entry = get_vehicle("quarter_car")
+    values = estimator_parameters(entry, None, None)
+    fast, ref = make_adapter(values, entry.namespace), make_adapter(values, entry.namespace)
+    ref._flush_before = lambda stamp_ns: _flush_before_reference(ref, stamp_ns)  # type: ignore[method-assign]
+    ref._drain = lambda: _drain_reference(ref)  # type: ignore[method-assign]
+    got, want = [], []
+    for key, msg in _adapter_messages(RNG_SEED + 100):
+        for adapter, out in ((fast, got), (ref, want)):
+            published = adapter.handle(key, msg)
+            h = adapter.health
+            out.append((h.updates, h.last_update_time, list(h.nis), list(h.warnings), dict(h.values)))
+            out.append(
+                [(topic, numeric_fields(m), m.header.stamp.sec, m.header.stamp.nanosec) for topic, m in published]
+            )
+            out.append((adapter.health.errors, adapter.health.status, dict(adapter.health.rejected)))
+    assert got == want
+    rejected = fast.health.rejected
+    assert any("body-only" in r for r in rejected) and any("dropped" in r for r in rejected)
+    assert fast.health.values["profile_gappy_steps"] > 0 and len(fast._profile_gappy) == 200
+    assert sum(1 for out in got if out and isinstance(out, list) and out) > 150
+
+
+@pytest.mark.parametrize(
+    ("k1", "k2", "n"), [(10, 5, 5), (10, 2, 5), (6, 3, 3), (10, 1, 5), (2, 1, 5), (1, 1, 3), (12, 2, 2)]
+)
+def test_tria_rows_is_tria_of_the_stacked_rows(k1: int, k2: int, n: int) -> None:
+    """The in-place factor of two stacked row blocks: tria of their concatenation, bit for bit."""
+    rng = np.random.default_rng(RNG_SEED + 110)
+    for _ in range(300):
+        top = rng.standard_normal((k1, n)) * 10.0 ** rng.uniform(-4, 4, size=n)
+        bottom = np.tril(rng.standard_normal((k2, n)))
+        if rng.random() < 0.2:
+            top[:, int(rng.integers(n))] = 0.0
+        top_before, bottom_before = top.copy(), bottom.copy()
+        expected = tria(np.concatenate((top, bottom)).T)
+        got = _tria_rows(top, bottom)
+        assert np.array_equal(got, expected) and np.array_equal(np.signbit(got), np.signbit(expected))
+        assert np.array_equal(got, _tria_reference(np.concatenate((top, bottom)).T))
+        assert np.array_equal(top, top_before) and np.array_equal(bottom, bottom_before)

@@ -167,13 +167,16 @@ import importlib
 import math
 import operator
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import lru_cache
+from types import MappingProxyType
 from typing import Any, Literal
 
 import numpy as np
 from scipy.linalg.lapack import dpotrf as _dpotrf
 
-from terrain_estimation.filters.base import Array, UpdateInfo
+from terrain_estimation.filters.base import Array, SqrtGaussianState, UpdateInfo
 from terrain_estimation.filters.faults import DivergenceConfig, DivergenceMonitor
 from terrain_estimation.models.quarter_car import (
     LRVModel,
@@ -578,6 +581,19 @@ def _fit_weights(pt: Array, t: float, half_w: float, degree: int) -> tuple[int, 
     return lo, rows[0], rows[1] / half_w
 
 
+@lru_cache(maxsize=32)
+def _grid_offsets(dt: float, n_sub: int) -> Array:
+    """``dt · [0, 1, …, N] / N``, the sub-step grid of a step relative to its start (read-only).
+
+    The same array ``t_prev + dt * np.arange(N + 1) / N`` adds to ``t_prev``
+    (``+`` comes last); cached because a step's ``dt`` takes a handful of
+    values (stamp differences in float seconds).
+    """
+    offsets = dt * np.arange(n_sub + 1) / n_sub
+    offsets.setflags(write=False)
+    return offsets
+
+
 class _NonFinite:
     """Stand-in posterior after a filter exception (triggers the recovery path)."""
 
@@ -623,6 +639,10 @@ class SoilStiffnessEstimator:
             self.model = LRVModel(cfg.lrv)
             self._body_only = None
         self.filter = filter_impl if filter_impl is not None else make_filter(cfg.filter)
+        # The default SCKF runs through its unchecked entries (_sckf_step); any
+        # other filter, a filter_impl, or a filter swapped in later through the
+        # public predict/update (_filter_step).
+        self._sckf: Any = self.filter if filter_impl is None and cfg.filter == "sckf" else None
         n = self.model.state_dim
         k_series = self.model.k_series
         k_tot0 = cfg.k_tot0 if cfg.k_tot0 is not None else 0.5 * k_series
@@ -641,8 +661,9 @@ class SoilStiffnessEstimator:
         self._hdot_fit = self._feedthrough and cfg.hdot_window_m > 0.0
         # How far before a step's start the profile is kept (see _prune).
         self._keep_s = max(self._smooth_half_w, _HDOT_MAX_WINDOW_S if self._hdot_fit else 0.0)
-        # R = √R √Rᵀ of the first ``rows`` measurements (constant), by rows.
-        self._r_base: dict[int, Array] = {}
+        # R = √R √Rᵀ of the first ``rows`` measurements and the gain matrix
+        # [0, g_ḣ] (both constant), by rows.
+        self._r_base: dict[int, tuple[Array, Array]] = {}
         self.reset()
 
     # -- public API -----------------------------------------------------------
@@ -661,13 +682,28 @@ class SoilStiffnessEstimator:
         self._detector = CusumDetector(self.config.change_drift, self.config.change_threshold)
         self._was_converged = False
         self._c: dict[str, int] = {f.name: 0 for f in dataclasses.fields(EstimatorCounters)}
+        self._counts = MappingProxyType(self._c)
         cfg_div = self.config.divergence
         self._monitor = DivergenceMonitor(cfg_div) if cfg_div is not None else None
+        # (t, _hdot_half_window(t)) once no later sample can change it.
+        self._half_window_cache: tuple[float, float] = (math.nan, 0.0)
+        # Profile stamps below this cannot make the waiting queue head ready.
+        self._profile_wait = -math.inf
 
     @property
     def counters(self) -> EstimatorCounters:
         """Health counters since the last reset."""
         return EstimatorCounters(**self._c)
+
+    @property
+    def counts(self) -> Mapping[str, int]:
+        """The same counters as a live read-only mapping (field name → count).
+
+        For a caller reading a few of them on every step (the node's
+        diagnostics): it costs nothing to get, where :attr:`counters` builds
+        an :class:`EstimatorCounters`.
+        """
+        return self._counts
 
     @property
     def fault(self) -> str | None:
@@ -727,6 +763,8 @@ class SoilStiffnessEstimator:
         self._ph.append(h)
         self._ps.append(s)
         self._last_distance = s
+        if not self._pending or t < self._profile_wait:
+            return None  # nothing queued, or the queued step still waits for the profile (see _process_pending)
         return self._process_pending()
 
     def add_accelerations(
@@ -803,6 +841,7 @@ class SoilStiffnessEstimator:
 
     def _process_pending(self) -> SoilStiffnessEstimate | None:
         produced: SoilStiffnessEstimate | None = None
+        self._profile_wait = -math.inf
         while self._pending:
             t, zb, zw = self._pending[0]
             if self._t_prev is None:
@@ -833,6 +872,13 @@ class SoilStiffnessEstimator:
                 continue
             status = self._ready(t)
             if status == "wait":
+                if self._pt and (not self._hdot_fit or self._pt[-1] > t):
+                    # The coverage this step needs is final (the ḣ window's
+                    # speed is read from samples up to t): until a profile
+                    # sample reaches it, or an accelerometer sample (which may
+                    # end the wait) arrives, _ready would say "wait" again, so
+                    # add_profile_sample skips the queue below this stamp.
+                    self._profile_wait = t + max(self._smooth_half_w, self._hdot_half_window(t)) - _EPS_T
                 break
             self._pending.popleft()
             if status == "drop":
@@ -866,19 +912,25 @@ class SoilStiffnessEstimator:
         """Elevation on the sub-step grid and the largest profile gap over it."""
         w = self._smooth_half_w
         g0, g1 = float(grid[0]), float(grid[-1])
-        pt, ph = self._profile_window(g0 - w, g1 + w)
+        # The window of _profile_window, kept as a list too for the gap search.
+        lo = max(bisect.bisect_left(self._pt, g0 - w) - 2, 0)
+        hi = bisect.bisect_right(self._pt, g1 + w, lo) + 2
+        st = self._pt[lo:hi]
+        pt, ph = np.array(st), np.array(self._ph[lo:hi])
         if w > 0.0:
             hg = _local_quadratic(pt, ph, grid, w)
         else:
             hg = np.interp(grid, pt, ph)
-        last = float(pt[-1])
+        last = st[-1]
         if g1 > last:  # the grid increases: some of it lies past the last sample
             slope = (ph[-1] - ph[-2]) / (pt[-1] - pt[-2]) if pt.size >= 2 else 0.0
             hg = np.where(grid > last, ph[-1] + slope * (grid - pt[-1]), hg)
-        i0 = max(int(pt.searchsorted(g0, side="right")) - 1, 0)
-        i1 = min(int(pt.searchsorted(g1, side="left")), pt.size - 1)
-        seg = pt[i0 : i1 + 1]
-        max_gap = float((seg[1:] - seg[:-1]).max()) if seg.size > 1 else 0.0
+        # The largest gap between the samples bracketing the grid: on the list
+        # (bisect is searchsorted, and the max of the same differences).
+        i0 = max(bisect.bisect_right(st, g0) - 1, 0)
+        i1 = min(bisect.bisect_left(st, g1), len(st) - 1)
+        seg = st[i0 : i1 + 1]
+        max_gap = max(map(operator.sub, seg[1:], seg)) if len(seg) > 1 else 0.0
         if g1 > last:
             max_gap = max(max_gap, g1 - last)
         return hg, max_gap
@@ -911,16 +963,24 @@ class SoilStiffnessEstimator:
         """
         if not self._hdot_fit:
             return 0.0
+        cached_t, cached = self._half_window_cache
+        if t == cached_t:
+            return cached
         half_max = 0.5 * _HDOT_MAX_WINDOW_S
         pt = self._pt
         i1 = bisect.bisect_right(pt, t) - 1
         i0 = bisect.bisect_left(pt, t - _SPEED_SPAN_S)
         if i1 <= i0:
-            return half_max
-        v = abs(self._ps[i1] - self._ps[i0]) / (pt[i1] - pt[i0])
-        if not (math.isfinite(v) and v > 0.0):
-            return half_max
-        return min(0.5 * self.config.hdot_window_m / v, half_max)
+            half = half_max
+        else:
+            v = abs(self._ps[i1] - self._ps[i0]) / (pt[i1] - pt[i0])
+            half = min(0.5 * self.config.hdot_window_m / v, half_max) if math.isfinite(v) and v > 0.0 else half_max
+        if pt and pt[-1] > t:
+            # Final: every later sample is stamped after t (add_profile_sample),
+            # and _prune keeps 0.1 s before the last step, which precedes t. A
+            # waiting step asks again on every profile sample until it runs.
+            self._half_window_cache = (t, half)
+        return half
 
     def _road_at_measurement(self, t: float, u_sub: Array, delta: float) -> tuple[float | None, Array]:
         """ḣ at the measurement time and the covariance of the road errors there.
@@ -942,8 +1002,16 @@ class SoilStiffnessEstimator:
         half = self._hdot_half_window(t)
         # Buffer indices below are relative to the window (lo_h, lo_d alike).
         reach = max(self._smooth_half_w, half)
-        pt, ph = self._profile_window(t - reach, t + reach)
         var = self.config.profile_noise_std**2
+        if reach == 0.0:
+            # Neither fit: h(t) is interpolated (or extrapolated) between two
+            # samples, whose weights are read off the buffer list: the same
+            # samples and float operations as on the window's arrays, without
+            # converting them (the quarter car's every step).
+            w_h = self._interpolation_weights(t)
+            var_h = var * float(w_h @ w_h)
+            return None, self._extrapolated_road_cov(var_h, u_sub.size, delta)
+        pt, ph = self._profile_window(t - reach, t + reach)
         # Weights of the elevation at t, as _profile_on_grid reconstructs it
         # (for the variance only: the local-fit case is approximated by the
         # fit over the same window).
@@ -979,11 +1047,37 @@ class SoilStiffnessEstimator:
             a, b = max(lo_h, lo_d), min(lo_h + w_h.size, lo_d + w_d.size)
             cov = var * float(w_h[a - lo_h : b - lo_h] @ w_d[a - lo_d : b - lo_d]) if b > a else 0.0
         else:
-            # 1.5 u_{N−1} − 0.5 u_{N−2} = (1.5 h_N − 2 h_{N−1} + 0.5 h_{N−2})/δ,
-            # grid elevations about as noisy as the one at t.
-            var_d = 6.5 * var_h / delta**2 if u_sub.size >= 2 else 2.0 * var_h / delta**2
-            cov = (1.5 if u_sub.size >= 2 else 1.0) * var_h / delta
+            return None, self._extrapolated_road_cov(var_h, u_sub.size, delta)
         return hdot_end, np.array([[var_h, cov], [cov, var_d]])
+
+    @staticmethod
+    def _extrapolated_road_cov(var_h: float, n_sub: int, delta: float) -> Array:
+        """Σ_ε when ḣ(t) is the model's extrapolation of the last sub-step slopes."""
+        # 1.5 u_{N−1} − 0.5 u_{N−2} = (1.5 h_N − 2 h_{N−1} + 0.5 h_{N−2})/δ,
+        # grid elevations about as noisy as the one at t.
+        var_d = 6.5 * var_h / delta**2 if n_sub >= 2 else 2.0 * var_h / delta**2
+        cov = (1.5 if n_sub >= 2 else 1.0) * var_h / delta
+        return np.array([[var_h, cov], [cov, var_d]])
+
+    def _interpolation_weights(self, t: float) -> Array:
+        """Weights of the two samples (or one) that ``_profile_on_grid`` reconstructs ``h(t)`` from, without smoothing.
+
+        Read off the buffer list; the values of the window-array form of
+        :meth:`_road_at_measurement` (the window holds every sample the
+        bisections below find, at the same positions relative to each other).
+        """
+        pt = self._pt
+        last = pt[-1]
+        if t > last:
+            if len(pt) >= 2:
+                beta = (t - last) / (last - pt[-2])
+                return np.array([-beta, 1.0 + beta])
+            return np.ones(1)
+        i = bisect.bisect_right(pt, t)
+        if i >= len(pt) or i == 0:
+            return np.ones(1)
+        a = (t - pt[i - 1]) / (pt[i] - pt[i - 1])
+        return np.array([1.0 - a, a])
 
     def _measurement_noise_sqrt(self, x: Array, rows: int, sigma_eps: Array) -> Array:
         """``√R_eff``, ``R_eff = R + G Σ_ε Gᵀ`` with ``G`` the model's road-error gains.
@@ -994,14 +1088,16 @@ class SoilStiffnessEstimator:
         fraction of its wrapper's cost); a matrix that is not positive
         definite raises ``numpy.linalg.LinAlgError`` as ``cholesky`` does.
         """
-        g_h, g_d = self.model.profile_error_gains(x)
-        gain = np.empty((rows, 2))
-        gain[:, 0] = g_h[:rows]
-        gain[:, 1] = g_d[:rows]
-        r = self._r_base.get(rows)
-        if r is None:
+        base = self._r_base.get(rows)
+        if base is None:
             rs = self.model.measurement_noise_sqrt()[:rows, :rows]
-            r = self._r_base[rows] = rs @ rs.T
+            # [g_h, g_ḣ] with the constant g_ḣ = D filled in (g_h is C(x̄) B, per step).
+            gain0 = np.zeros((rows, 2))
+            gain0[:, 1] = self.model.profile_error_gains(x)[1][:rows]
+            base = self._r_base[rows] = (rs @ rs.T, gain0)
+        r, gain0 = base
+        gain = gain0.copy()
+        gain[:, 0] = self.model._road_gain(x)[:rows]
         r_eff = r + gain @ sigma_eps @ gain.T
         factor, info = _dpotrf(0.5 * (r_eff + r_eff.T), lower=1, clean=1)
         if info != 0:
@@ -1022,7 +1118,7 @@ class SoilStiffnessEstimator:
         cfg = self.config
         assert self._t_prev is not None
         n_sub = max(1, math.ceil(dt * cfg.substep_rate_hz - 1e-6))
-        grid = self._t_prev + dt * np.arange(n_sub + 1) / n_sub
+        grid = self._t_prev + _grid_offsets(dt, n_sub)
         hg, max_gap = self._profile_on_grid(grid)
         spacing = self._profile_spacing()
         gap_ratio = max_gap / spacing if spacing > 0.0 else 1.0
@@ -1034,39 +1130,18 @@ class SoilStiffnessEstimator:
         self._c["steps"] += 1
 
         prev_state = self._state
+        prior: Any
+        post: Any
         nis, accepted = 0.0, False
         update_dim = 0  # measurement size of the update (0: predict-only or failed)
         failed = False
         try:
-            prior = self.filter.predict(prev_state, self.model, u, dt)
-            post = prior
-            if max_gap > cfg.profile_max_gap_s:
-                self._c["predict_only"] += 1
+            if self.filter is self._sckf:
+                prior, post, nis, accepted, update_dim = self._sckf_step(prev_state, u, dt, max_gap, zb, zw, sigma_eps)
             else:
-                if self._body_only is None:
-                    model: Any = self.model
-                    z = np.array([zb])
-                elif zw is None:
-                    model = self._body_only
-                    z = np.array([zb])
-                else:
-                    model = self.model
-                    z = np.array([zb, zw])
-                if cfg.profile_noise_std > 0.0:
-                    rs = self._measurement_noise_sqrt(np.asarray(prior.x), z.size, sigma_eps)
-                    post, info = self.filter.update(prior, z, model, u, measurement_noise_sqrt=rs)
-                else:
-                    post, info = self.filter.update(prior, z, model, u)
-                nis = float(info.nis)
-                accepted = bool(info.accepted)
-                update_dim = z.size
-                if accepted and cfg.gate_threshold is not None and not (nis <= cfg.gate_threshold):
-                    accepted = False
-                if not accepted:
-                    self._c["gated"] += 1
-                    post = prior
-                else:
-                    self._c["updates_accepted"] += 1
+                prior, post, nis, accepted, update_dim = self._filter_step(
+                    prev_state, u, dt, max_gap, zb, zw, sigma_eps
+                )
         except (ValueError, np.linalg.LinAlgError):
             # The filters raise on non-finite model output or a broken factor:
             # handled below exactly like a non-finite posterior.
@@ -1081,7 +1156,7 @@ class SoilStiffnessEstimator:
         cov = np.asarray(post.covariance, dtype=float)
         if self._monitor is not None:
             x, cov, accepted, nis = self._watch(post, x, cov, failed, update_dim, monitor_nis, accepted, nis)
-        elif not (np.isfinite(x).all() and np.isfinite(cov).all()):
+        elif not (all(map(math.isfinite, x.tolist())) and np.isfinite(cov).all()):
             self._c["recoveries"] += 1
             self._state = prev_state
             self._restart_motion()
@@ -1127,7 +1202,9 @@ class SoilStiffnessEstimator:
         converged = math.sqrt(k_s_var) < cfg.convergence_rel_std * k_s
         self._was_converged = self._was_converged or converged
 
-        state = tuple(v if math.isfinite(v) else 0.0 for v in x.tolist())
+        state = tuple(x.tolist())
+        if not all(map(math.isfinite, state)):
+            state = tuple(v if math.isfinite(v) else 0.0 for v in state)
         est = SoilStiffnessEstimate(
             t=t,
             k_s=k_s,
@@ -1146,6 +1223,91 @@ class SoilStiffnessEstimator:
         self._last = est
         self._outbox.append(est)
         return est
+
+    def _measurement(self, zb: float, zw: float | None) -> tuple[Any, Array]:
+        """The model and measurement vector of an update: both accelerometers, or the body's alone."""
+        if self._body_only is None:
+            return self.model, np.array([zb])
+        if zw is None:
+            return self._body_only, np.array([zb])
+        return self.model, np.array([zb, zw])
+
+    def _filter_step(
+        self, prev_state: Any, u: Any, dt: float, max_gap: float, zb: float, zw: float | None, sigma_eps: Array
+    ) -> tuple[Any, Any, float, bool, int]:
+        """Predict and (unless the profile has a gap) update with any filter: ``(prior, post, nis, accepted, dim)``.
+
+        ``dim`` is the measurement size of the update (0 for predict-only).
+        Raises what the filter raises (ValueError, LinAlgError).
+        """
+        cfg = self.config
+        nis, accepted = 0.0, False
+        update_dim = 0
+        prior = self.filter.predict(prev_state, self.model, u, dt)
+        post = prior
+        if max_gap > cfg.profile_max_gap_s:
+            self._c["predict_only"] += 1
+            return prior, post, nis, accepted, update_dim
+        model, z = self._measurement(zb, zw)
+        if cfg.profile_noise_std > 0.0:
+            rs = self._measurement_noise_sqrt(np.asarray(prior.x), z.size, sigma_eps)
+            post, info = self.filter.update(prior, z, model, u, measurement_noise_sqrt=rs)
+        else:
+            post, info = self.filter.update(prior, z, model, u)
+        nis = float(info.nis)
+        accepted = bool(info.accepted)
+        update_dim = z.size
+        if accepted and cfg.gate_threshold is not None and not (nis <= cfg.gate_threshold):
+            accepted = False
+        if not accepted:
+            self._c["gated"] += 1
+            post = prior
+        else:
+            self._c["updates_accepted"] += 1
+        return prior, post, nis, accepted, update_dim
+
+    def _sckf_step(
+        self,
+        prev_state: SqrtGaussianState,
+        u: Any,
+        dt: float,
+        max_gap: float,
+        zb: float,
+        zw: float | None,
+        sigma_eps: Array,
+    ) -> tuple[SqrtGaussianState, SqrtGaussianState, float, bool, int]:
+        """:meth:`_filter_step` with the default SCKF through its unchecked entries, bit for bit.
+
+        The estimator guarantees what the SCKF's public methods check (a
+        float ``(n,)`` mean and ``(n, n)`` factor it produced itself, a finite
+        measurement of the model's size, the model's noise factors), so it
+        calls ``_predict_fast`` / ``_update_fast``: no shape checks, no
+        :class:`UpdateInfo`, and one discretisation shared by ``f`` and the
+        process noise (``_propagate``). The model's outputs are still checked
+        for finite values (ValueError, as the public methods raise).
+        """
+        cfg = self.config
+        filt = self._sckf
+        assert filt is not None
+        x_pred, S_pred = filt._predict_fast(prev_state.x, prev_state.S, self.model._propagate, u, dt)  # noqa: N806
+        prior = SqrtGaussianState(x=x_pred, S=S_pred)
+        if max_gap > cfg.profile_max_gap_s:
+            self._c["predict_only"] += 1
+            return prior, prior, 0.0, False, 0
+        model, z = self._measurement(zb, zw)
+        if cfg.profile_noise_std > 0.0:
+            rs = self._measurement_noise_sqrt(x_pred, z.size, sigma_eps)
+        else:
+            rs = np.asarray(model.measurement_noise_sqrt(), dtype=float)
+        nis, upd = filt._update_fast(x_pred, S_pred, z, model.h, u, rs)
+        accepted = upd is not None
+        if accepted and cfg.gate_threshold is not None and not (nis <= cfg.gate_threshold):
+            accepted = False
+        if not accepted or upd is None:
+            self._c["gated"] += 1
+            return prior, prior, nis, False, z.size
+        self._c["updates_accepted"] += 1
+        return prior, SqrtGaussianState(x=upd[0], S=upd[1]), nis, True, z.size
 
     def _watch(
         self,

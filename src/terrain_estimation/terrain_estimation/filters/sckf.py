@@ -31,21 +31,22 @@ factors the user's ``P0``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from .base import (
+    Array,
     SqrtGaussianState,
     StateSpaceModel,
     UpdateInfo,
     check_square,
     check_vector,
-    nis_gate,
 )
 from .kalman import check_factor, check_gate_threshold, check_measurement, initial_gaussian
-from .sigma_points import cubature_points, robust_sqrt, solve_lower, tria
+from .sigma_points import _tria_rows, cubature_points, robust_sqrt, solve_lower
 from .ukf import check_points
 
 __all__ = ["SquareRootCubatureKalmanFilter"]
@@ -112,10 +113,36 @@ class SquareRootCubatureKalmanFilter:
         ps = cubature_points(n)
         X = x + ps.unit @ S.T  # (14)
         Xs = check_points("model.f", model.f(X, u, dt), 2 * n, n)  # (15)
-        x_pred = ps.Wm @ Xs  # (16)
-        chi_star_t = (Xs - x_pred) * (1.0 / math.sqrt(2 * n))  # (17), transposed
-        S_pred = tria(np.concatenate((chi_star_t, L.T)).T)  # (18)
+        x_pred, S_pred = _time_update(ps.Wm, Xs, L)
         return SqrtGaussianState(x=x_pred, S=S_pred)
+
+    def _predict_fast(
+        self,
+        x: Array,
+        S: Array,
+        propagate: Callable[[Array, Array, Any, float], tuple[Array, Array]],
+        u: Any,
+        dt: float,
+    ) -> tuple[Array, Array]:
+        """:meth:`predict` for a caller that guarantees the shapes: ``(x̄, S̄)``, bit for bit.
+
+        For the soil-stiffness estimator's step (its model, its state), where
+        the shape checks, the state object and a second discretisation cost
+        more than the arithmetic. ``propagate(X, x, u, dt)`` returns the model's
+        ``(f(X, u, dt), process_noise_sqrt(x, u, dt))`` (e.g.
+        ``QuarterCarModel._propagate``, which shares one discretisation
+        between them); only its points are checked (finite, as ``predict``
+        does: a ValueError otherwise).
+
+        Args:
+            x: float ``(n,)``; S: float ``(n, n)`` lower-triangular factor.
+        """
+        ps = cubature_points(x.shape[0])
+        X = x + ps.unit @ S.T  # (14)
+        Xs, L = propagate(X, x, u, dt)  # (15) and √Q_k
+        if not np.isfinite(Xs).all():
+            raise ValueError("model.f returned non-finite values")
+        return _time_update(ps.Wm, Xs, L)
 
     def update(
         self,
@@ -154,26 +181,9 @@ class SquareRootCubatureKalmanFilter:
             Rs = check_factor("model.measurement_noise_sqrt", model.measurement_noise_sqrt(), p)
         else:
             Rs = check_factor("measurement_noise_sqrt", measurement_noise_sqrt, p)
-        ps = cubature_points(n)
-        c = 1.0 / math.sqrt(2 * n)
-        dX = ps.unit @ S.T  # X_i − x̄ of (19)
-        Z = check_points("model.h", model.h(x + dX, u), 2 * n, p)  # (19)-(20)
-        z_hat = ps.Wm @ Z  # (21)
-        Zc_t = (Z - z_hat) * c  # (22), transposed: 𝒵ᵀ (2n, p)
-        S_z = tria(np.concatenate((Zc_t, Rs.T)).T)  # (23)
-        chi_t = dX * c  # (24), transposed: χᵀ (2n, n)
-        P_xz = chi_t.T @ Zc_t  # (25)
-        nu = zv - z_hat
+        nu, S_z, nis, post = self._update_core(x, S, zv, model.h, u, Rs, p)
         info_extras = {"innovation_cov_sqrt": S_z}
-        # First solve of (26), S_z A = [P_xzᵀ, ν]: also whitens ν for the NIS ‖S_z⁻¹ν‖².
-        A = solve_lower(S_z, np.concatenate((P_xz.T, nu[:, None]), axis=1))
-        w = A[:, n]
-        nis = float(w @ w)
-        if not S_z.diagonal().all():
-            # S_z singular (R = 0 and degenerate points): no usable innovation;
-            # an infinite NIS makes the gate reject it whatever the threshold.
-            nis = float("inf")
-        if not nis_gate(nis, self.gate_threshold):
+        if post is None:
             info = UpdateInfo(
                 innovation=nu,
                 innovation_cov=S_z @ S_z.T,
@@ -182,9 +192,61 @@ class SquareRootCubatureKalmanFilter:
                 extras=info_extras,
             )
             return state, info
+        info = UpdateInfo(innovation=nu, innovation_cov=S_z @ S_z.T, nis=nis, accepted=True, extras=info_extras)
+        return SqrtGaussianState(x=post[0], S=post[1]), info
+
+    def _update_fast(
+        self, x: Array, S: Array, z: Array, h: Callable[[Array, Any], Array], u: Any, Rs: Array
+    ) -> tuple[float, tuple[Array, Array] | None]:
+        """:meth:`update` for a caller that guarantees the shapes and a finite ``z``, bit for bit.
+
+        Returns ``(nis, (x̂, S) or None)``: None when the gate rejects (the
+        caller keeps its prior). No :class:`UpdateInfo` (its ``S_z S_zᵀ`` is
+        formed for reporting only). ``h``'s points are checked as
+        :meth:`update` checks them.
+
+        Args:
+            x: float ``(n,)``; S: float ``(n, n)``; z: float ``(p,)``, finite;
+            h: the model's ``h``; Rs: ``√R`` ``(p, r)``.
+        """
+        _, _, nis, post = self._update_core(x, S, z, h, u, Rs, z.shape[0])
+        return nis, post
+
+    def _update_core(
+        self, x: Array, S: Array, zv: Array, h: Callable[[Array, Any], Array], u: Any, Rs: Array, p: int
+    ) -> tuple[Array, Array, float, tuple[Array, Array] | None]:
+        """Eqs. (19)–(28) on checked arrays: ``(ν, S_z, NIS, (x̂, S) or None when gated)``."""
+        n = x.shape[0]
+        ps = cubature_points(n)
+        c = 1.0 / math.sqrt(2 * n)
+        dX = ps.unit @ S.T  # X_i − x̄ of (19)
+        Z = check_points("model.h", h(x + dX, u), 2 * n, p)  # (19)-(20)
+        z_hat = ps.Wm @ Z  # (21)
+        Zc_t = (Z - z_hat) * c  # (22), transposed: 𝒵ᵀ (2n, p)
+        S_z = _tria_rows(Zc_t, Rs.T)  # (23): tria([𝒵, √R])
+        chi_t = dX * c  # (24), transposed: χᵀ (2n, n)
+        P_xz = chi_t.T @ Zc_t  # (25)
+        nu = zv - z_hat
+        # First solve of (26), S_z A = [P_xzᵀ, ν]: also whitens ν for the NIS ‖S_z⁻¹ν‖².
+        A = solve_lower(S_z, np.concatenate((P_xz.T, nu[:, None]), axis=1))
+        w = A[:, n]
+        nis = float(w @ w)
+        if not all(S_z.diagonal().tolist()):
+            # S_z singular (R = 0 and degenerate points): no usable innovation;
+            # an infinite NIS makes the gate reject it whatever the threshold.
+            nis = float("inf")
+        if not (math.isfinite(nis) and (self.gate_threshold is None or nis <= self.gate_threshold)):
+            return nu, S_z, nis, None  # nis_gate's rejection, inlined (a per-step numpy scalar call)
         # Second solve of (26), S_zᵀ Wᵀ = A: W = P_xz S_z⁻ᵀ S_z⁻¹.
         W_t = solve_lower(S_z, A[:, :n], transpose=True)
         x_post = x + nu @ W_t  # (27)
-        S_post = tria(np.concatenate((chi_t - Zc_t @ W_t, Rs.T @ W_t)).T)  # (28)
-        info = UpdateInfo(innovation=nu, innovation_cov=S_z @ S_z.T, nis=nis, accepted=True, extras=info_extras)
-        return SqrtGaussianState(x=x_post, S=S_post), info
+        S_post = _tria_rows(chi_t - Zc_t @ W_t, Rs.T @ W_t)  # (28)
+        return nu, S_z, nis, (x_post, S_post)
+
+
+def _time_update(Wm: Array, Xs: Array, L: Array) -> tuple[Array, Array]:
+    """Eqs. (16)–(18) from the propagated points ``(2n, n)`` and ``√Q_k`` ``(n, q)``: ``(x̄, S̄)``."""
+    x_pred = Wm @ Xs  # (16)
+    chi_star_t = (Xs - x_pred) * (1.0 / math.sqrt(Xs.shape[0]))  # (17), transposed
+    S_pred = _tria_rows(chi_star_t, L.T)  # (18): tria([χ*, √Q_k])
+    return x_pred, S_pred

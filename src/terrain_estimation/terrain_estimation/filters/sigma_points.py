@@ -32,6 +32,7 @@ from functools import lru_cache
 from typing import cast
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.linalg.blas import dtrsm
 from scipy.linalg.lapack import dgeqrf as _dgeqrf
 
@@ -216,11 +217,43 @@ def tria(A: Array) -> Array:  # matrix symbol of the literature
     n, k = A.shape
     if k < n:
         A = np.hstack([A, np.zeros((n, n - k))])
+    return _lower_factor(A.T, overwrite=False)
+
+
+def _tria_rows(top: Array, bottom: Array) -> Array:
+    """``tria(np.concatenate((top, bottom)).T)``: the compound matrix given by the rows of ``Aᵀ``, bit for bit.
+
+    The square-root filters stack ``Aᵀ`` from two blocks (points, noise
+    factor); here they are written straight into a Fortran-ordered array
+    that LAPACK factors in place, instead of a concatenation that the
+    ``dgeqrf`` wrapper then copies to Fortran order (the same values reach the
+    same routine).
+
+    Args:
+        top: ``(k1, n)``; bottom: ``(k2, n)``.
+    """
+    k1, n = top.shape
+    k = k1 + bottom.shape[0]
+    rows = np.empty((max(k, n), n), order="F")
+    rows[:k1] = top
+    rows[k1:k] = bottom
+    if k < n:
+        rows[k:] = 0.0  # tria's zero columns
+    return _lower_factor(rows, overwrite=True)
+
+
+def _lower_factor(rows: Array, *, overwrite: bool) -> Array:
+    """The factor of :func:`tria` from ``Aᵀ`` ``(k ≥ n, n)`` (overwritten if ``overwrite`` and Fortran-ordered)."""
+    n = rows.shape[1]
     # dgeqrf leaves R in the upper triangle of its first n rows and the
     # Householder vectors below it; Sᵀ = R.
-    S = _dgeqrf(A.T, lwork=_QR_LWORK_PER_COLUMN * n)[0][:n].T
+    S = _dgeqrf(rows, lwork=_QR_LWORK_PER_COLUMN * n, overwrite_a=int(overwrite))[0][:n].T
     flip = np.where(S.diagonal() < 0.0, -1.0, 1.0)
-    return np.where(_lower_mask(n), S * flip, 0.0)
+    # np.where(lower, S * flip, 0.0) in one ufunc call into zeros (+0.0 above
+    # the diagonal either way): tria runs three times per filter step.
+    out = np.zeros((n, n))
+    np.multiply(S, flip, out=out, where=_lower_mask(n))
+    return out
 
 
 #: Workspace of :func:`tria`'s ``dgeqrf`` per column: at least the block size
@@ -231,9 +264,11 @@ _QR_LWORK_PER_COLUMN = 64
 
 
 @lru_cache(maxsize=16)
-def _lower_mask(n: int) -> Array:
+def _lower_mask(n: int) -> NDArray[np.bool_]:
     """Read-only boolean ``(n, n)`` mask of the lower triangle, diagonal included."""
-    return _frozen(np.tri(n, dtype=bool))
+    mask = np.tri(n, dtype=bool)
+    mask.setflags(write=False)
+    return mask
 
 
 def robust_sqrt(P: Array) -> Array:

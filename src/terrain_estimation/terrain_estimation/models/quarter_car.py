@@ -344,29 +344,77 @@ def discretise(a: Array, delta: float, method: Discretisation) -> tuple[Array, A
     """
     a = np.asarray(a, dtype=float)
     n = a.shape[-1]
-    eye = _eye(n)
     ad = a * delta
     if method == "taylor4":
-        # Horner form of the two truncated series, run on the stacked pair
-        # (Φ, Γ/δ) so that each of the three Horner steps is one call:
-        #   Φ:   I + Aδ/4,  I + Aδ·Φ/3,  I + Aδ·Φ/2,  I + Aδ·Φ
-        #   Γ/δ: I + Aδ/5,  I + Aδ·Γ/4,  I + Aδ·Γ/3,  I + Aδ·Γ/2.
-        # Same products and divisions, element by element, as two separate
-        # recursions (x/1 is exact), at half the numpy calls: the filters
-        # discretise a (2n, n, n) batch every step and Python overhead,
-        # not arithmetic, dominates at n = 5.
-        div = _HORNER_DIVISORS.reshape((4, 2) + (1,) * a.ndim)
-        pair = eye + ad / div[0]
-        for d in div[1:]:
-            pair = eye + ad @ pair / d
+        pair = _taylor4_pair(ad)
         return pair[0], pair[1] * delta
     if method == "expm":
+        eye = _eye(n)
         big = np.zeros(a.shape[:-2] + (2 * n, 2 * n))
         big[..., :n, :n] = ad
         big[..., :n, n:] = eye * delta
         e = scipy.linalg.expm(big)
         return e[..., :n, :n], e[..., :n, n:]
     raise ValueError(f"unknown discretisation {method!r}")
+
+
+def _taylor4_pair(ad: Array) -> Array:
+    """The stacked pair ``(Φ, Γ/δ)`` ``(2, *ad.shape)`` of the ``"taylor4"`` series, from ``ad = A δ``.
+
+    Horner form of the two truncated series, run on the stacked pair so that
+    each of the three Horner steps is one call per operation::
+
+        Φ:   I + Aδ/4,  I + Aδ·Φ/3,  I + Aδ·Φ/2,  I + Aδ·Φ
+        Γ/δ: I + Aδ/5,  I + Aδ·Γ/4,  I + Aδ·Γ/3,  I + Aδ·Γ/2.
+
+    Same products and divisions, element by element, as two separate
+    recursions (x/1 is exact; ``X + I`` is ``I + X``), at half the numpy calls:
+    the filters discretise a ``(2n, n, n)`` batch every step and Python
+    overhead, not arithmetic, dominates at n = 5. The identity and the
+    divisors are held at the full shape of the pair
+    (:func:`_horner_operands`) and the steps run in place: a ufunc on two
+    operands of one shape takes its contiguous loop, ≈ 3× cheaper than
+    broadcasting a ``(2, 1, 1, 1)`` divisor at these sizes.
+    """
+    eye, (d0, d1, d2, d3) = _horner_operands(ad.shape)
+    pair = np.divide(ad, d0)
+    np.add(pair, eye, out=pair)
+    buf = np.matmul(ad, pair)
+    np.divide(buf, d1, out=buf)
+    np.add(buf, eye, out=buf)
+    np.matmul(ad, buf, out=pair)
+    np.divide(pair, d2, out=pair)
+    np.add(pair, eye, out=pair)
+    np.matmul(ad, pair, out=buf)
+    np.divide(buf, d3, out=buf)
+    np.add(buf, eye, out=buf)
+    return buf
+
+
+@lru_cache(maxsize=32)
+def _horner_operands(shape: tuple[int, ...]) -> tuple[Array, tuple[Array, Array, Array, Array]]:
+    """Identity and the four divisor pairs of :func:`_taylor4_pair` at the full shape ``(2, *shape)``.
+
+    The values of broadcasting ``I`` and :data:`_HORNER_DIVISORS`, materialised
+    once per shape (read-only); a large batch gets read-only broadcast views
+    instead (the same values, without holding megabytes in the cache).
+    """
+    full = (2, *shape)
+    small = math.prod(full) <= _HORNER_MATERIALISE_MAX
+
+    def operand(a: Array) -> Array:
+        out = np.broadcast_to(a, full)
+        if small:
+            out = out.copy()
+            out.setflags(write=False)
+        return out
+
+    divs = [operand(d.reshape((2,) + (1,) * len(shape))) for d in _HORNER_DIVISORS]
+    return operand(np.eye(shape[-1])), (divs[0], divs[1], divs[2], divs[3])
+
+
+#: Largest stacked pair (elements) whose Horner operands are materialised.
+_HORNER_MATERIALISE_MAX = 1 << 14
 
 
 def _clip(v: Any, lo: float, hi: float) -> Array:
@@ -377,6 +425,29 @@ def _clip(v: Any, lo: float, hi: float) -> Array:
     evaluation.
     """
     return np.minimum(np.maximum(v, lo), hi)
+
+
+def _run_substeps(pts: Array, phi: Array, gb: Array, us: Array) -> Array:
+    """The sub-step recursion of :meth:`_BilinearKtotModel.f`: ``x ← Φ x + Γb u_j`` per point.
+
+    The points as ``(m, n, 1)`` columns and the input terms ``Γb·u_j`` of all
+    sub-steps from one product (the same products the loop would form): each
+    sub-step is then one matmul and one in-place add, which halves the
+    per-sub-step numpy calls (10 sub-steps per 10 ms step at 1 kHz). The
+    stiffness state is passed through unchanged (exact random walk, row 5 of
+    A.1 is zero).
+
+    Returns:
+        ``(m, n)``, a new array.
+    """
+    gbu = us[:, None, None, None] * gb[:, :, None]
+    col = pts[:, :, None]
+    for gbu_j in gbu:
+        col = np.matmul(phi, col)
+        col += gbu_j
+    y = col[:, :, 0]
+    y[:, -1] = pts[:, -1]
+    return y
 
 
 def _discretise_with_input(
@@ -438,9 +509,11 @@ def substep_inputs(u: Any) -> Array:
         arr = np.atleast_1d(arr).ravel()
     if arr.size == 0:
         return np.zeros(1)
-    finite = np.isfinite(arr)
-    if not finite.all():
-        arr = np.where(finite, arr, 0.0)
+    # A step's ten-odd values are checked faster as floats than by two numpy calls.
+    if arr.size > 32 or not all(map(math.isfinite, arr.tolist())):
+        finite = np.isfinite(arr)
+        if not finite.all():
+            arr = np.where(finite, arr, 0.0)
     return arr
 
 
@@ -459,7 +532,7 @@ def hdot_at_end(u: Any) -> float:
     ḣ noise of ``√6.5 · σ_h/δ`` (0.25 m/s for 0.1 mm at 1 kHz), which is why
     the estimator supplies ``hdot_end`` from a fit instead.
     """
-    if isinstance(u, StepInput) and u.hdot_end is not None and np.isfinite(u.hdot_end):
+    if isinstance(u, StepInput) and u.hdot_end is not None and math.isfinite(u.hdot_end):
         return float(u.hdot_end)
     us = substep_inputs(u)
     if us.size < 2:
@@ -515,6 +588,8 @@ class _BilinearKtotModel:
         self._d = self._b[self._rows]
         self._feedthrough = bool(np.any(self._d))
         self._noise_cache: tuple[float, float, Array] | None = None
+        # _propagate's batch operands (A0 and the step lengths at full shape), by (m, δ, dt).
+        self._batch_operands: dict[tuple[int, float, float], tuple[Array, Array]] = {}
 
     # -- protocol -----------------------------------------------------------
     @property
@@ -691,18 +766,64 @@ class _BilinearKtotModel:
         us = substep_inputs(u)
         delta = float(dt) / us.size
         phi, gb = _discretise_with_input(self.A(pts), self._b, delta, self._method)
-        # The points as (m, n, 1) columns and the input terms Γb·u_j of all
-        # sub-steps from one product (the same products the loop would form):
-        # each sub-step is then one matmul and one in-place add, which halves
-        # the per-sub-step numpy calls (10 sub-steps per 10 ms step at 1 kHz).
-        gbu = us[:, None, None, None] * gb[:, :, None]
-        col = pts[:, :, None]
-        for gbu_j in gbu:
-            col = phi @ col
-            col += gbu_j
-        y = col[:, :, 0]
-        y[:, -1] = pts[:, -1]  # k_tot: exact random walk (row 5 of A.1 is zero)
+        y = _run_substeps(pts, phi, gb, us)
         return y[0] if single else y
+
+    def _propagate(self, pts: Array, x_mean: Array, u: Any, dt: float) -> tuple[Array, Array]:
+        """``(f(pts, u, dt), process_noise_sqrt(x_mean, u, dt))`` in one pass (the SCKF's fast path).
+
+        Bit for bit the two public calls (the same operations on every
+        element, and ``f``'s sub-step loop itself): on a miss of the noise
+        cache the ``"taylor4"`` series of the ``m`` points (over the sub-step
+        δ) and of the mean (over the whole step ``dt``) run as one ``(m + 1)``
+        batch, each matrix with its own step length, which saves the second
+        discretisation's dozen numpy calls. Any other case calls the two
+        methods.
+
+        Args:
+            pts: points ``(m, n)``, float (not modified).
+            x_mean: the mean ``(n,)`` the process noise is evaluated at.
+            u, dt: as for :meth:`f`.
+
+        Returns:
+            ``(Y, L)``: propagated points ``(m, n)`` and ``√Q_k`` ``(n, n)``
+            (the noise cache's own array, read-only, on a cache miss).
+        """
+        dt = float(dt)
+        k_c = self._mean_ktot(x_mean)
+        cache = self._noise_cache
+        if self._method != "taylor4" or (cache is not None and cache[0] == dt and cache[1] == k_c):
+            return self.f(pts, u, dt), self.process_noise_sqrt(x_mean, u, dt)
+        us = substep_inputs(u)
+        delta = dt / us.size
+        m = pts.shape[0]
+        n = self._a0.shape[0]
+        k = np.empty(m + 1)
+        k[:m] = self.ktot_of(pts[:, -1])
+        k[m] = k_c
+        key = (m, delta, dt)
+        operands = self._batch_operands.get(key)
+        if operands is None:
+            if len(self._batch_operands) >= 16:
+                self._batch_operands.clear()
+            a0_full = np.broadcast_to(self._a0, (m + 1, n, n)).copy()
+            steps_full = np.full((m + 1, n, n), delta)
+            steps_full[m] = dt
+            a0_full.setflags(write=False)
+            steps_full.setflags(write=False)
+            operands = self._batch_operands[key] = (a0_full, steps_full)
+        a0, steps = operands
+        # (A0 + k E) δ_i as A(x) and discretise form it (k·E then A0 + ·, then · δ),
+        # against full-shape operands: ufuncs on equal shapes skip broadcasting.
+        a = (k[:, None] * self._e.ravel()).reshape(m + 1, n, n)
+        np.add(a, a0, out=a)
+        np.multiply(a, steps, out=a)
+        pair = _taylor4_pair(a)
+        gam = np.multiply(pair[1], steps)
+        lq = self._noise_factor(gam[m], dt)
+        lq.setflags(write=False)  # the cache's own array is handed out
+        self._noise_cache = (dt, k_c, lq)
+        return _run_substeps(pts, pair[0, :m], gam[:m] @ self._b, us), lq
 
     def h(self, x: Array, u: Any = None) -> Array:
         """Predicted accelerations ``z = C(x) x + D ḣ`` (P-9, A.4) in m/s².
@@ -748,9 +869,13 @@ class _BilinearKtotModel:
             ``g_ḣ = 0``; LRV: ``g_h = k_tot/m_s − (c/m_s)² `` (relative damper,
             ``k_tot/m_s`` otherwise), ``g_ḣ = c/m_s`` (relative) or 0.
         """
+        return self._road_gain(x), self._d.copy()
+
+    def _road_gain(self, x: Array) -> Array:
+        """``g_h = C(x̄) B`` of :meth:`profile_error_gains` alone (the estimator's every update)."""
         k_c = self._mean_ktot(x)
         c = self._c0 + k_c * self._ce
-        return c @ self._b, self._d.copy()
+        return c @ self._b
 
     def process_noise_sqrt(self, x: Array, u: Any, dt: float) -> Array:
         """Square-root factor ``L`` of ``Q_k`` over one filter step, ``(n, n)`` (A.4).
@@ -769,18 +894,22 @@ class _BilinearKtotModel:
             return cache[2].copy()
         a = self._a0 + k_c * self._e
         _, gam = discretise(a, dt, self._method)
-        lq = math.sqrt(dt) * (gam @ self._g) * self._sigma_q
-        if self._stiffness_state == "log_k_s":
-            lq[:, -1] = 0.0
-            lq[-1, -1] = np.sqrt(self._q_log_ks_per_step * dt / self._ktot_step_dt)
-        elif self._noise_form == "per_step":
-            lq[:, -1] = 0.0
-            lq[-1, -1] = np.sqrt(self._q_ktot_per_step * dt / self._ktot_step_dt)
-        else:
-            lq[:, -1] = 0.0
-            lq[-1, -1] = np.sqrt(dt) * dt * self._sigma_q[-1]
+        lq = self._noise_factor(gam, dt)
         self._noise_cache = (dt, k_c, lq)
         return lq.copy()
+
+    def _noise_factor(self, gam: Array, dt: float) -> Array:
+        """``√Q_k`` of :meth:`process_noise_sqrt` from ``Γ_k(dt)`` at the mean k_tot."""
+        lq = math.sqrt(dt) * (gam @ self._g) * self._sigma_q
+        lq[:, -1] = 0.0
+        # math.sqrt: IEEE square roots are correctly rounded, numpy's as libm's.
+        if self._stiffness_state == "log_k_s":
+            lq[-1, -1] = math.sqrt(self._q_log_ks_per_step * dt / self._ktot_step_dt)
+        elif self._noise_form == "per_step":
+            lq[-1, -1] = math.sqrt(self._q_ktot_per_step * dt / self._ktot_step_dt)
+        else:
+            lq[-1, -1] = math.sqrt(dt) * dt * self._sigma_q[-1]
+        return lq
 
     # -- Jacobians (EKF, A.6) -------------------------------------------------
     def transition_jacobian(self, x: Array, u: Any, dt: float) -> Array:

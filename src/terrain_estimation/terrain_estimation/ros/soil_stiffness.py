@@ -454,10 +454,14 @@ class SoilStiffnessAdapter:
         self._wheel: dict[int, float] = {}
         self.travel_speed = math.nan
         self._profile_gappy: deque[bool] = deque(maxlen=PROFILE_GAP_WINDOW)
+        self._gappy_count = 0  # True entries of _profile_gappy
 
     # -- accelerometer pairing -------------------------------------------------
     def _flush_before(self, stamp_ns: int) -> None:
         """Use waiting body samples older than ``stamp_ns`` alone; drop older wheel samples."""
+        # Runs on every accelerometer message; usually nothing is older.
+        if not ((self._body and min(self._body) < stamp_ns) or (self._wheel and min(self._wheel) < stamp_ns)):
+            return
         for t in sorted(t for t in self._body if t < stamp_ns):
             self.health.reject("imu/wheel: no sample with the body stamp (body-only update)")
             self.estimator.add_accelerations(t * 1e-9, self._body.pop(t), None)
@@ -486,16 +490,20 @@ class SoilStiffnessAdapter:
 
     # -- adapter protocol --------------------------------------------------------
     def handle(self, key: str, msg: Any) -> list[tuple[str, Any]]:
-        stamp_ns = stamp_to_ns(msg.header.stamp)
         if key == "profile":
-            self.estimator.add_profile_sample(stamp_ns * 1e-9, msg.point.x, msg.point.z)
+            point = msg.point
+            self.estimator.add_profile_sample(stamp_to_ns(msg.header.stamp) * 1e-9, point.x, point.z)
         elif key == "imu_body":
-            self._on_body(stamp_ns, msg.linear_acceleration.z)
+            self._on_body(stamp_to_ns(msg.header.stamp), msg.linear_acceleration.z)
         elif key == "imu_wheel":
-            self._on_wheel(stamp_ns, msg.linear_acceleration.z)
+            self._on_wheel(stamp_to_ns(msg.header.stamp), msg.linear_acceleration.z)
         elif key == "joint_states":
-            self._on_joints(msg)
-        return [("soil_stiffness", estimate_to_msg(e, self.frame_id)) for e in self._drain()]
+            self._on_joints(msg)  # the stamp is not used
+        estimates = self._drain()
+        if not estimates:  # most messages (≈ 12 of 13 on the quarter car) complete no step
+            return []
+        frame_id = self.frame_id
+        return [("soil_stiffness", estimate_to_msg(e, frame_id)) for e in estimates]
 
     def _on_joints(self, msg: Any) -> None:
         names = list(msg.name)
@@ -507,19 +515,24 @@ class SoilStiffnessAdapter:
     def _drain(self) -> list[SoilStiffnessEstimate]:
         estimates = self.estimator.drain_estimates()
         h = self.health
+        gappy_steps = self._profile_gappy
         for e in estimates:
             h.updates += 1
             h.last_update_time = e.t
             if e.accepted:
                 h.nis.append(e.nis)
-            self._profile_gappy.append(e.profile_gap_ratio > PROFILE_GAP_RATIO_WARN)
+            lost = e.profile_gap_ratio > PROFILE_GAP_RATIO_WARN
+            if len(gappy_steps) == gappy_steps.maxlen:
+                self._gappy_count -= gappy_steps[0]  # about to drop out of the window
+            gappy_steps.append(lost)
+            self._gappy_count += lost
         if estimates:
             last = estimates[-1]
-            c = self.estimator.counters
+            c = self.estimator.counts
             h.status = f"k_s {last.k_s / 1e3:.1f} kN/m, {last.terrain_class} ({last.class_confidence:.2f})" + (
                 ", converged" if last.converged else ", converging"
             )
-            gappy = sum(self._profile_gappy)
+            gappy = self._gappy_count  # sum(self._profile_gappy), kept as the window moves
             n = len(self._profile_gappy)
             h.warnings = (
                 [
@@ -536,19 +549,23 @@ class SoilStiffnessAdapter:
                 k_s_std=math.sqrt(last.k_s_variance),
                 terrain_class=last.terrain_class,
                 travel_speed=self.travel_speed,
-                soil_changes=c.soil_changes,
-                restarts=c.restarts,
-                gated=c.gated,
-                dropped_nonfinite=c.dropped_nonfinite,
-                dropped_out_of_order=c.dropped_out_of_order,
-                dropped_no_profile=c.dropped_no_profile,
-                profile_rejected=c.profile_rejected,
-                divergences=c.divergences,
+                soil_changes=c["soil_changes"],
+                restarts=c["restarts"],
+                gated=c["gated"],
+                dropped_nonfinite=c["dropped_nonfinite"],
+                dropped_out_of_order=c["dropped_out_of_order"],
+                dropped_no_profile=c["dropped_no_profile"],
+                profile_rejected=c["profile_rejected"],
+                divergences=c["divergences"],
             )
         # Runs for every input message (≈ 13 per filter step on the quarter
-        # car): the counters are only read when there is a fault to report.
+        # car): the counters are only read when there is a fault to report,
+        # and an empty error list is left as it is.
         fault = self.estimator.fault
-        h.errors = divergence_errors(fault, self.estimator.counters.divergences) if fault else []
+        if fault:
+            h.errors = divergence_errors(fault, self.estimator.counters.divergences)
+        elif h.errors:
+            h.errors = []
         return estimates
 
 
