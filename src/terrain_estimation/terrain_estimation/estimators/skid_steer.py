@@ -83,7 +83,9 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -99,7 +101,8 @@ from terrain_estimation.models.skid_steer_observer import (
     DEFAULT_R0_DIAG,
     SkidSteerInput,
     SkidSteerObserverModel,
-    derived_outputs,
+    _derived_values,
+    _wheel_xy,
     encoder_kinematics,
 )
 
@@ -354,6 +357,10 @@ class SkidSteerEstimator:
         self.filter = self.config.make_filter()
         self._p0 = np.diag(np.array(self.config.p0_diag, dtype=float))
         self._friction = self.config.friction
+        # Per-step constants of _estimate.
+        self._wheel_xy = _wheel_xy(self.config.vehicle)
+        self._speed_floor_sq = self.config.vehicle.rolling_speed_floor**2
+        self._min_sideslip_speed_sq = self.config.min_sideslip_speed**2
         self.reset()
 
     # -- public API ---------------------------------------------------------------
@@ -376,6 +383,11 @@ class SkidSteerEstimator:
     def counters(self) -> SkidSteerCounters:
         """Snapshot of the health counters."""
         return SkidSteerCounters(**self._c)
+
+    def counter_values(self) -> Mapping[str, int]:
+        """The health counters by :class:`SkidSteerCounters` field name, in field order: a read-only
+        view of the live counts (until :meth:`reset`), cheaper than the :attr:`counters` snapshot."""
+        return MappingProxyType(self._c)
 
     @property
     def fault(self) -> str | None:
@@ -435,9 +447,17 @@ class SkidSteerEstimator:
         Raises:
             ValueError: a non-finite argument (named in the message).
         """
-        where = "add_imu"
-        tt = _finite(where, "t", t)
-        z = np.array([_finite(where, "ax", ax), _finite(where, "ay", ay), _finite(where, "yaw_rate", yaw_rate)])
+        values = (t, ax, ay, yaw_rate)
+        try:
+            floats = [float(v) for v in values]
+        except (TypeError, ValueError):
+            floats = []
+        if len(floats) != 4 or not all(map(math.isfinite, floats)):
+            # The first offending argument, named (what the loop below raises).
+            for name, value in zip(("t", "ax", "ay", "yaw_rate"), values, strict=True):
+                _finite("add_imu", name, value)
+        tt = floats[0]
+        z = np.array(floats[1:])
         self._c["imu_samples"] += 1
         if self._t_last_imu is not None and tt <= self._t_last_imu:
             self._c["imu_out_of_order"] += 1
@@ -513,8 +533,17 @@ class SkidSteerEstimator:
         u = self._input(wl, wr, a_prev)
         failure: str | None = None
         try:
-            post, res = self.filter.step(prev, z, self.model, u, dt, self._memory)
-            ok = bool(np.isfinite(post.x).all() and np.isfinite(post.P).all())
+            filt = self.filter
+            if type(filt) is AdaptiveStrongTrackingUKF:
+                # step's own checks hold here: prev.x is the filter's (3,) float mean, z the finite
+                # float array add_imu built (the model's output is still checked).
+                post, res = filt._step(prev, prev.x, z, self.model, u, dt, self._memory)
+            else:
+                post, res = filt.step(prev, z, self.model, u, dt, self._memory)
+            # np.isfinite(x).all() and np.isfinite(P).all(), on the floats (3 + 9: cheaper than two ufuncs).
+            ok = all(map(math.isfinite, np.asarray(post.x, dtype=float).ravel().tolist())) and all(
+                map(math.isfinite, np.asarray(post.P, dtype=float).ravel().tolist())
+            )
         except (ValueError, np.linalg.LinAlgError) as exc:
             # Non-finite model output, too many Euler sub-steps, a broken factor.
             ok = False
@@ -563,13 +592,13 @@ class SkidSteerEstimator:
             init=False,
         )
 
-    def _advance_pose(self, dt: float, x_new: Array) -> None:
+    def _advance_pose(self, dt: float, vx_new: float, vy_new: float, r_new: float) -> None:
         """Trapezoidal twist, mid-step heading (exact for constant twist to O(dt³))."""
         px, py, yaw = self._pose
         if dt > 0.0 and self._last is not None:
-            vx = 0.5 * (self._last.vx + float(x_new[0]))
-            vy = 0.5 * (self._last.vy + float(x_new[1]))
-            r = 0.5 * (self._last.yaw_rate + float(x_new[2]))
+            vx = 0.5 * (self._last.vx + vx_new)
+            vy = 0.5 * (self._last.vy + vy_new)
+            r = 0.5 * (self._last.yaw_rate + r_new)
             mid = yaw + 0.5 * dt * r
             c, s = math.cos(mid), math.sin(mid)
             px += dt * (c * vx - s * vy)
@@ -595,49 +624,65 @@ class SkidSteerEstimator:
         cfg = self.config
         x = np.asarray(self._state.x, dtype=float)
         P = np.asarray(self._state.P, dtype=float)
-        self._advance_pose(dt, x)
-        out = derived_outputs(x, wl, wr, cfg.vehicle, cfg.min_yaw_rate)
-        # β = atan2(vy, vx): ∂β/∂(vx, vy) = (−vy, vx)/(vx² + vy²); the speed is
-        # floored at the rolling-speed floor so the variance stays finite at
-        # rest, and capped at π² (β's whole range is 2π).
-        v2 = max(float(x[0] ** 2 + x[1] ** 2), cfg.vehicle.rolling_speed_floor**2)
-        jac = np.array([-x[1], x[0]]) / v2
-        beta_var = min(float(jac @ P[:2, :2] @ jac), math.pi**2)
-        beta, alpha = out.body_sideslip, out.tire_sideslip
-        if v2 < cfg.min_sideslip_speed**2:
+        vx, vy, r = x.tolist()  # the floats of x[0], x[1], x[2]
+        self._advance_pose(dt, vx, vy, r)
+        slip_left, slip_right, alpha, beta, icr_x, icr_y, icr_valid, vx_enc, r_enc = _derived_values(
+            vx, vy, r, wl, wr, cfg.vehicle, cfg.min_yaw_rate, *self._wheel_xy
+        )
+        v2, beta_var = _body_sideslip_variance(vx, vy, P, self._speed_floor_sq)
+        if v2 < self._min_sideslip_speed_sq:
             # Near standstill the direction of travel, hence every sideslip
             # angle, is undefined: atan2 of two noise-sized velocities would
             # publish angles up to ±π. Report 0 with the whole-range variance.
-            beta, beta_var, alpha = 0.0, math.pi**2, (0.0,) * len(out.tire_sideslip)
+            beta, beta_var, alpha = 0.0, math.pi**2, (0.0,) * len(alpha)
         px, py, yaw = self._pose
+        cov = P.ravel().tolist()
         return SkidSteerEstimate(
             t=t,
-            vx=float(x[0]),
-            vx_variance=float(P[0, 0]),
-            vy=float(x[1]),
-            vy_variance=float(P[1, 1]),
-            yaw_rate=float(x[2]),
-            yaw_rate_variance=float(P[2, 2]),
+            vx=vx,
+            vx_variance=cov[0],
+            vy=vy,
+            vy_variance=cov[4],
+            yaw_rate=r,
+            yaw_rate_variance=cov[8],
             body_sideslip=beta,
             body_sideslip_variance=max(beta_var, 0.0),
-            slip_left=out.slip_left,
-            slip_right=out.slip_right,
+            slip_left=slip_left,
+            slip_right=slip_right,
             tire_sideslip=alpha,
-            icr_x=out.icr_x,
-            icr_y=out.icr_y,
-            icr_valid=out.icr_valid,
+            icr_x=icr_x,
+            icr_y=icr_y,
+            icr_valid=icr_valid,
             fading_factor=float(fading),
             noise_scale=float(scale),
             mean_abs_tire_sideslip=float(a_bar),
             x=px,
             y=py,
             yaw=yaw,
-            twist_covariance=tuple(P.ravel().tolist()),
+            twist_covariance=tuple(cov),
             nis=float(nis),
             accepted=bool(accepted),
             initialised=init,
             wheel_speed_left=wl,
             wheel_speed_right=wr,
-            vx_encoder=out.vx_encoder,
-            yaw_rate_encoder=out.yaw_rate_encoder,
+            vx_encoder=vx_enc,
+            yaw_rate_encoder=r_enc,
         )
+
+
+def _body_sideslip_variance(vx: float, vy: float, P: Array, speed_floor_sq: float) -> tuple[float, float]:
+    """``(v², var β)``: the squared speed, floored at ``speed_floor_sq``, and the first-order variance
+    of ``β = atan2(vy, vx)``, capped at π².
+
+    ``∂β/∂(vx, vy) = (−vy, vx)/(vx² + vy²)``; the floor (the rolling-speed floor squared) keeps the
+    variance finite at rest, the cap is β's whole range (2π). On the state's floats: Python's
+    ``float ** 2`` and numpy's float64 ``** 2`` are the same libm ``pow`` (not ``x * x``, which
+    rounds differently now and then), and ``−vy/v²`` is ``(−vy)/v²`` exactly, so these are the
+    floats of the array form (a test compares), overflow included.
+    """
+    try:
+        v2 = max(vx**2 + vy**2, speed_floor_sq)
+    except OverflowError:  # Python's float ** raises where numpy's gives inf (and warns): numpy's then
+        v2 = max(float(np.float64(vx) ** 2 + np.float64(vy) ** 2), speed_floor_sq)
+    jac = np.array([-vy / v2, vx / v2])
+    return v2, min(float(jac @ P[:2, :2] @ jac), math.pi**2)

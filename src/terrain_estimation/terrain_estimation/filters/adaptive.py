@@ -289,20 +289,29 @@ def adapt_noise_sqrt(
         raise ValueError(f"k_q must be finite and >= 0, got {k_q}")
     if not (math.isfinite(k_r) and k_r >= 0.0):
         raise ValueError(f"k_r must be finite and >= 0, got {k_r}")
-    alpha = np.asarray(slip_angles, dtype=float)
-    if alpha.size == 0 or not np.isfinite(alpha).all():
-        raise ValueError("slip_angles must be non-empty and finite")
+    alpha = _checked_slip_angles(slip_angles)
     q0 = np.asarray(q0_sqrt, dtype=float)
     r0 = np.asarray(r0_sqrt, dtype=float)
     for name, arr in (("q0_sqrt", q0), ("r0_sqrt", r0)):
         if arr.ndim != 2 or arr.size == 0:
             raise ValueError(f"{name} must be a non-empty 2-D factor, got shape {arr.shape}")
+    q, r, q_scale, a_bar = _adapted_noise_factors(q0, r0, alpha, k_q, k_r)
+    return NoiseAdaptation(process_noise_sqrt=q, measurement_noise_sqrt=r, noise_scale=q_scale, mean_abs_slip=a_bar)
+
+
+def _checked_slip_angles(slip_angles: Any) -> Array:
+    """``slip_angles`` as a float array; ValueError if it is empty or not finite."""
+    alpha = np.asarray(slip_angles, dtype=float)
+    if alpha.size == 0 or not np.isfinite(alpha).all():
+        raise ValueError("slip_angles must be non-empty and finite")
+    return alpha
+
+
+def _adapted_noise_factors(
+    q0: Array, r0: Array, alpha: Array, k_q: float, k_r: float
+) -> tuple[Array, Array, float, float]:
+    """The arithmetic of :func:`adapt_noise_sqrt` on checked arguments: ``(√Q_k, √R_k, 1 + K_q ᾱ, ᾱ)``."""
     a_bar = float(np.abs(alpha).sum() / alpha.size)  # np.mean's own arithmetic, without its dispatch
     q_scale = 1.0 + k_q * a_bar
     r_scale = 1.0 + k_r * a_bar
-    return NoiseAdaptation(
-        process_noise_sqrt=q0 * math.sqrt(q_scale),
-        measurement_noise_sqrt=r0 / math.sqrt(r_scale),
-        noise_scale=q_scale,
-        mean_abs_slip=a_bar,
-    )
+    return q0 * math.sqrt(q_scale), r0 / math.sqrt(r_scale), q_scale, a_bar

@@ -20,6 +20,13 @@ followed by the update; it is spelled out from the same parts (``propagate``,
 sideslip at the predicted mean ``x̄`` and swap in the adapted ``Q_k`` without
 propagating the points a second time (``x̄`` does not depend on Q; the
 propagation is the expensive part, a vehicle model with Euler sub-steps).
+Once :meth:`~AdaptiveStrongTrackingUKF.step` has checked its arguments it
+calls the UKF's private cores of those methods (``_propagate_points``,
+``_moments``, ``_gain_update``: the one implementation of each, which the
+public methods run after their own checks) and the arithmetic of
+:func:`~.adaptive.adapt_noise_sqrt`, so nothing is checked twice per step
+(the skid-steer estimator runs one step per IMU sample; a test compares the
+step with the composition of the former public calls, bit for bit).
 
 The adaptation needs the model to give the tire sideslip angles at a state:
 :class:`TireSideslipModel` (e.g.
@@ -36,10 +43,15 @@ from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-from .adaptive import StrongTrackingConfig, adapt_noise_sqrt, suboptimal_fading_factor
-from .base import Array, GaussianState, StateSpaceModel, check_vector
-from .kalman import check_factor, check_measurement
-from .ukf import SigmaPointPrediction, UnscentedKalmanFilter
+from .adaptive import (
+    StrongTrackingConfig,
+    _adapted_noise_factors,
+    _checked_slip_angles,
+    suboptimal_fading_factor,
+)
+from .base import Array, GaussianState, StateSpaceModel, check_square, check_vector
+from .kalman import check_factor, check_measurement, symmetrise
+from .ukf import UnscentedKalmanFilter
 
 __all__ = [
     "Variant",
@@ -171,6 +183,15 @@ class AdaptiveStrongTrackingUKF:
         n, p = model.state_dim, model.measurement_dim
         x = check_vector("state.x", state.x, n)
         zv = check_measurement(z, p)
+        return self._step(state, x, zv, model, u, dt, memory)
+
+    def _step(
+        self, state: GaussianState, x: Array, zv: Array, model: StateSpaceModel, u: Any, dt: float, memory: Array | None
+    ) -> tuple[GaussianState, AnStukfResult]:
+        """:meth:`step` once ``x = state.x`` is a float ``(n,)`` array and ``zv`` a finite float ``(p,)``
+        measurement (the skid-steer estimator, whose state and measurement are that by construction,
+        calls it directly; the rest is checked here)."""
+        n, p = model.state_dim, model.measurement_dim
         Lq0 = None if self.q0_sqrt is None else check_factor("q0_sqrt", self.q0_sqrt, n)
         Rs0 = None if self.r0_sqrt is None else check_factor("r0_sqrt", self.r0_sqrt, p)
         if self.variant == "ukf":
@@ -191,36 +212,42 @@ class AdaptiveStrongTrackingUKF:
             Lq0 = check_factor("model.process_noise_sqrt", model.process_noise_sqrt(x, u, dt), n)
         if Rs0 is None:
             Rs0 = check_factor("model.measurement_noise_sqrt", model.measurement_noise_sqrt(), p)
-        pred = self.ukf.propagate(state, model, u, dt, process_noise_sqrt=Lq0)  # x̄, P̄0, Q0 (B.8)
-        Rs = Rs0
+        # From here on the arguments are checked: the UKF's cores (the same arithmetic as its
+        # propagate / measurement_moments / update) run without repeating the checks.
+        ukf = self.ukf
+        P = check_square("state.P", state.P, n)
+        x_bar, P0 = ukf._propagate_points(x, P, model, u, dt)  # x̄, P̄0 (B.8)
+        Lq, Rs = Lq0, Rs0
         noise_scale, a_bar = 1.0, 0.0
         if self.variant == "an_stukf":
             sideslip = getattr(model, "tire_sideslip", None)  # TireSideslipModel (cheaper than isinstance)
             if not callable(sideslip):
                 raise ValueError("variant 'an_stukf' needs a model with tire_sideslip(x, u) (TireSideslipModel)")
-            # B.10: the tire sideslip at the predicted mean x̄ drives Q_k and R_k.
-            noise = adapt_noise_sqrt(Lq0, Rs0, sideslip(pred.x, u), k_q=self.k_q, k_r=self.k_r)
-            Lq = noise.process_noise_sqrt
-            pred = SigmaPointPrediction(x=pred.x, P0=pred.P0, Q=Lq @ Lq.T)  # x̄ and P̄0 do not depend on Q
-            Rs = noise.measurement_noise_sqrt
-            noise_scale, a_bar = noise.noise_scale, noise.mean_abs_slip
+            # B.10: the tire sideslip at the predicted mean x̄ drives Q_k and R_k (x̄ and P̄0 do not depend on Q).
+            alpha = _checked_slip_angles(sideslip(x_bar, u))
+            Lq, Rs, noise_scale, a_bar = _adapted_noise_factors(Lq0, Rs0, alpha, self.k_q, self.k_r)
+        Q = Lq @ Lq.T
         # B.9, as strong_tracking_predict: moments at the plain prediction, λ, P̄ = λ P̄0 + Q_k.
-        prior = pred.state()
-        mm = self.ukf.measurement_moments(prior, model, u, measurement_noise_sqrt=Rs)
-        lam, V = suboptimal_fading_factor(
-            zv - mm.z_hat, mm.P_zz, mm.P_xz, prior.P, mm.R, pred.Q, memory, self.strong_tracking
-        )
-        if lam == 1.0:  # no inflation: the update's points and moments are the ones just computed
-            post, info = self.ukf.update(prior, zv, model, u, moments=mm)
-        else:
-            post, info = self.ukf.update(pred.state(lam), zv, model, u, measurement_noise_sqrt=Rs)
+        # SigmaPointPrediction.state() is symmetrise(λ P̄0 + Q_k); at λ = 1 the product is P̄0 exactly.
+        P_prior = symmetrise(P0 + Q)
+        z_hat, P_zz, P_xz, R = ukf._moments(x_bar, P_prior, Rs, model, u)
+        nu = zv - z_hat
+        lam, V = suboptimal_fading_factor(nu, P_zz, P_xz, P_prior, R, Q, memory, self.strong_tracking)
+        if lam != 1.0:
+            # Inflated: the update redraws the points from P̄ = λ P̄0 + Q_k (at λ = 1 its points and
+            # moments would be the ones just computed).
+            P_prior = symmetrise(lam * P0 + Q)
+            z_hat, P_zz, P_xz, _ = ukf._moments(x_bar, P_prior, Rs, model, u)
+            nu = zv - z_hat
+        updated, nis = ukf._gain_update(x_bar, P_prior, nu, P_zz, P_xz)
+        post = GaussianState(x=x_bar, P=P_prior) if updated is None else GaussianState(x=updated[0], P=updated[1])
         return post, AnStukfResult(
             fading_factor=float(lam),
             noise_scale=float(noise_scale),
             mean_abs_sideslip=float(a_bar),
-            nis=float(info.nis),
-            innovation=info.innovation,
-            innovation_cov=info.innovation_cov,
-            accepted=info.accepted,
+            nis=float(nis),
+            innovation=nu,
+            innovation_cov=P_zz,
+            accepted=updated is not None,
             memory=V,
         )

@@ -35,7 +35,6 @@ from .base import (
     UpdateInfo,
     check_square,
     check_vector,
-    nis_gate,
 )
 from .kalman import (
     check_factor,
@@ -43,9 +42,8 @@ from .kalman import (
     check_measurement,
     initial_gaussian,
     symmetrise,
-    whiten_innovation,
 )
-from .sigma_points import SigmaPointSet, merwe_scaled_sigma_points, robust_sqrt
+from .sigma_points import SigmaPointSet, merwe_scaled_sigma_points, robust_sqrt, solve_lower
 
 __all__ = [
     "SigmaPointKalmanFilter",
@@ -54,6 +52,61 @@ __all__ = [
     "UnscentedKalmanFilter",
     "check_points",
 ]
+
+
+try:
+    # The gufunc behind np.linalg.cholesky (numpy's own LAPACK), called as np.linalg.cholesky calls it.
+    from numpy.linalg import _umath_linalg
+
+    _CHOLESKY_LO: Any = _umath_linalg.cholesky_lo
+except (ImportError, AttributeError):  # pragma: no cover - another numpy layout: the public function
+    _CHOLESKY_LO = None
+
+
+def _raise_not_positive_definite(err: str, flag: int) -> None:
+    raise np.linalg.LinAlgError("Matrix is not positive definite")
+
+
+def _cholesky(P: Array) -> Array:
+    """``np.linalg.cholesky(P)`` for a float64 ``(n, n)`` array, without the wrapper's argument handling.
+
+    The same gufunc under the same floating-point error state (a matrix that is
+    not positive definite raises LinAlgError), so the same factor bit for bit
+    (a test compares them); the wrapper's type and shape dispatch cost more than
+    the factorisation of a 3×3 matrix, three times per filter step.
+    """
+    if _CHOLESKY_LO is None or type(P) is not np.ndarray or P.dtype != np.float64:
+        return np.asarray(np.linalg.cholesky(P))  # other types: the wrapper's casts and wrapping
+    with np.errstate(call=_raise_not_positive_definite, invalid="call", over="ignore", divide="ignore", under="ignore"):
+        return np.asarray(_CHOLESKY_LO(P, signature="d->d"))
+
+
+def _sqrt_factor(P: Array) -> Array:
+    """:func:`~.sigma_points.robust_sqrt` of a float64 ``(n, n)`` array, its Cholesky through :func:`_cholesky`."""
+    try:
+        return _cholesky(P)
+    except np.linalg.LinAlgError:
+        return robust_sqrt(P)  # the PSD projection (its Cholesky fails the same way first)
+
+
+def _whitened(P_zz: Array, P_xz: Array, nu: Array) -> tuple[Array, Array, float]:
+    """``(Y, w, NIS)`` of :func:`~.kalman.whiten_innovation` for float64 arrays, its Cholesky through
+    :func:`_cholesky` and the right-hand side ``[P_xzᵀ, ν]`` written into one array (the same
+    values as its ``column_stack``); ``NIS = inf`` (and ``Y``, ``w`` NaN) if ``P_zz`` is not
+    positive definite."""
+    n = P_xz.shape[0]
+    p = nu.shape[0]
+    try:
+        L = _cholesky(P_zz)
+    except np.linalg.LinAlgError:
+        nan = np.full((p, n + 1), np.nan)
+        return nan[:, :n], nan[:, n], float("inf")
+    rhs = np.empty((p, n + 1))
+    rhs[:, :n] = P_xz.T
+    rhs[:, n] = nu
+    sol = solve_lower(L, rhs)
+    w = sol[:, n]
+    return sol[:, :n], w, float(w @ w)
 
 
 def check_points(name: str, value: Any, m: int, d: int) -> Array:
@@ -151,16 +204,26 @@ class SigmaPointKalmanFilter(ABC):
         n = model.state_dim
         x = check_vector("state.x", state.x, n)
         P = check_square("state.P", state.P, n)
-        ps = self.point_set(n)
         if process_noise_sqrt is None:
             L = check_factor("model.process_noise_sqrt", model.process_noise_sqrt(x, u, dt), n)
         else:
             L = check_factor("process_noise_sqrt", process_noise_sqrt, n)
-        X = x + ps.unit @ robust_sqrt(P).T
+        x_new, P0 = self._propagate_points(x, P, model, u, dt)
+        return SigmaPointPrediction(x=x_new, P0=P0, Q=L @ L.T)
+
+    def _propagate_points(self, x: Array, P: Array, model: StateSpaceModel, u: Any, dt: float) -> tuple[Array, Array]:
+        """``x̄, P̄0`` of :meth:`propagate` for an already checked float ``x`` ``(n,)`` and ``P`` ``(n, n)``.
+
+        The one implementation of the prediction's points (``propagate`` and the
+        AN-STUKF's step call it); only the model's output is checked here.
+        """
+        n = x.shape[0]
+        ps = self.point_set(n)
+        X = x + ps.unit @ _sqrt_factor(P).T
         Xp = check_points("model.f", model.f(X, u, dt), ps.num_points, n)
         x_new = ps.Wm @ Xp
         D = Xp - x_new
-        return SigmaPointPrediction(x=x_new, P0=symmetrise((D.T * ps.Wc) @ D), Q=L @ L.T)
+        return x_new, symmetrise((D.T * ps.Wc) @ D)
 
     def predict(
         self,
@@ -216,13 +279,23 @@ class SigmaPointKalmanFilter(ABC):
             Rs = check_factor("model.measurement_noise_sqrt", model.measurement_noise_sqrt(), p)
         else:
             Rs = check_factor("measurement_noise_sqrt", measurement_noise_sqrt, p)
+        z_hat, P_zz, P_xz, R = self._moments(x, P, Rs, model, u)
+        return MeasurementMoments(z_hat=z_hat, P_zz=P_zz, P_xz=P_xz, R=R)
+
+    def _moments(
+        self, x: Array, P: Array, Rs: Array, model: StateSpaceModel, u: Any
+    ) -> tuple[Array, Array, Array, Array]:
+        """``ẑ, P_zz, P_xz, R`` of :meth:`measurement_moments` for an already checked float ``x``
+        ``(n,)``, ``P`` ``(n, n)`` and factor ``Rs`` ``(p, r)`` (only the model's output is checked)."""
+        n = x.shape[0]
         ps = self.point_set(n)
-        dX = ps.unit @ robust_sqrt(P).T  # χ − x̄ (the points are centred on x̄)
-        Z = check_points("model.h", model.h(x + dX, u), ps.num_points, p)
+        dX = ps.unit @ _sqrt_factor(P).T  # χ − x̄ (the points are centred on x̄)
+        Z = check_points("model.h", model.h(x + dX, u), ps.num_points, Rs.shape[0])
         z_hat = ps.Wm @ Z
-        dZ_w = (Z - z_hat).T * ps.Wc
+        dZ = Z - z_hat
+        dZ_w = dZ.T * ps.Wc
         R = Rs @ Rs.T
-        return MeasurementMoments(z_hat=z_hat, P_zz=symmetrise(dZ_w @ (Z - z_hat) + R), P_xz=(dZ_w @ dX).T, R=R)
+        return z_hat, symmetrise(dZ_w @ dZ + R), (dZ_w @ dX).T, R
 
     def update(
         self,
@@ -261,14 +334,25 @@ class SigmaPointKalmanFilter(ABC):
             else self.measurement_moments(state, model, u, measurement_noise_sqrt=measurement_noise_sqrt)
         )
         nu = zv - mm.z_hat
-        _, Y, w, nis = whiten_innovation(mm.P_zz, mm.P_xz, nu)
-        if not nis_gate(nis, self.gate_threshold):
+        post, nis = self._gain_update(state.x, state.P, nu, mm.P_zz, mm.P_xz)
+        if post is None:
             return state, UpdateInfo(innovation=nu, innovation_cov=mm.P_zz, nis=nis, accepted=False)
+        return GaussianState(x=post[0], P=post[1]), UpdateInfo(
+            innovation=nu, innovation_cov=mm.P_zz, nis=nis, accepted=True
+        )
+
+    def _gain_update(
+        self, x: Any, P: Any, nu: Array, P_zz: Array, P_xz: Array
+    ) -> tuple[tuple[Array, Array] | None, float]:
+        """The gated gain step of :meth:`update`: ``((x̂, P), NIS)``, or ``(None, NIS)`` when the gate rejects."""
+        Y, w, nis = _whitened(P_zz, P_xz, nu)  # whiten_innovation's Y, w, NIS
+        threshold = self.gate_threshold
+        if not (math.isfinite(nis) and (threshold is None or nis <= threshold)):  # nis_gate, for a float
+            return None, nis
         # K ν = Yᵀ w and K P_zz Kᵀ = Yᵀ Y (see whiten_innovation): P = P̄ − K P_zz Kᵀ.
-        x = np.asarray(state.x, dtype=float)
-        P = np.asarray(state.P, dtype=float)
-        post = GaussianState(x=x + Y.T @ w, P=symmetrise(P - Y.T @ Y))
-        return post, UpdateInfo(innovation=nu, innovation_cov=mm.P_zz, nis=nis, accepted=True)
+        x = np.asarray(x, dtype=float)
+        P = np.asarray(P, dtype=float)
+        return (x + Y.T @ w, symmetrise(P - Y.T @ Y)), nis
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -147,10 +147,12 @@ class SkidSteerInput:
     friction: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("omega_left", "omega_right", "ax", "ay"):
-            value = getattr(self, name)
-            if not math.isfinite(value):
-                raise ValueError(f"SkidSteerInput.{name} must be finite, got {value}")
+        isfinite = math.isfinite
+        if not (isfinite(self.omega_left) and isfinite(self.omega_right) and isfinite(self.ax) and isfinite(self.ay)):
+            for name in ("omega_left", "omega_right", "ax", "ay"):
+                value = getattr(self, name)
+                if not isfinite(value):
+                    raise ValueError(f"SkidSteerInput.{name} must be finite, got {value}")
         mu = self.friction
         if mu is not None and not (math.isfinite(mu) and mu > 0.0):
             raise ValueError(f"SkidSteerInput.friction must be None or finite and > 0, got {mu}")
@@ -176,11 +178,12 @@ def relaxation_rate_per_speed(p: SkidSteerParams) -> float:
     return float(np.linalg.eigvalsh(s[:, None] * d * s[None, :])[-1])
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class _StepTerms:
     """Per-input constants of a step: wheel speeds per wheel, loads, μ, rolling floor, and the
     per-wheel factors of the brush model that depend on the input alone (``R ω``, ``V_r``,
-    ``μ F_z``, the saturation limit ``3 μ F_z`` and its divisor)."""
+    ``μ F_z``, the saturation limit ``3 μ F_z`` and its divisor). Not modified once built
+    (slots, not frozen: built once per step, read by every force evaluation)."""
 
     omega6: Array
     normal_load: Array
@@ -252,9 +255,17 @@ class SkidSteerObserverModel:
         self.max_substeps = max_substeps
         self.relaxation_rate_per_speed = relaxation_rate_per_speed(self.params)
         self._wheel_x, self._wheel_y = wheel_positions(self.params)  # the params are frozen
+        # Stacked constants of _force_sums and f (x row first, y row second).
+        self._contact_arm = np.array([self._wheel_y, -self._wheel_x])[:, None, :]
+        self._moment_arm = np.array([-self._wheel_y, self._wheel_x])[:, None, :]
+        self._stiffness = np.array([self.params.longitudinal_stiffness, -self.params.cornering_stiffness])[
+            :, None, None
+        ]
+        self._coriolis_sign = np.array([1.0, -1.0])[:, None]
+        self._rate_divisor = np.array([self.params.mass, self.params.mass, 1.0])[:, None]
         xa = axle_positions(self.params)
         s1, s2 = float(np.sum(xa)), float(np.sum(xa**2))
-        self._axles = (xa, s1, s2, 3.0 * s2 - s1**2)
+        self._axles = (tuple(xa.tolist()), s1, s2, 3.0 * s2 - s1**2)
         self._q0_sqrt = np.sqrt(np.array(q))
         self._r0_sqrt = np.diag(np.sqrt(np.array(r)))
         # One-entry cache of the per-input terms: f and h see the same frozen
@@ -290,29 +301,40 @@ class SkidSteerObserverModel:
         n_sub = self._substeps(terms, dt)
         delta = dt / n_sub
         p = self.params
-        xs = np.asarray(x, dtype=float)  # only read: every sub-step makes new arrays
-        vx, vy, r = xs[..., 0], xs[..., 1], xs[..., 2]
+        xs = np.asarray(x, dtype=float)  # only read: every sub-step makes a new array
+        # Per sub-step, on the components (rows of c, _force_sums's form), the same operations per
+        # element as vx += δ (ΣF_x/m + vy r), vy += δ (ΣF_y/m − vx r), r += (δ M_z)/I_z, with the
+        # rows stacked: [ΣF_x/m, ΣF_y/m, M_z/1] + [vy r, −(vx r), 0] (a − b is a + (−b) exactly),
+        # times δ, the last row then divided by I_z.
+        c = _component_rows(xs)
+        out = xs  # n_sub >= 1: replaced by a new array at the first sub-step
         for _ in range(n_sub):
-            fx, fy, mz = self._forces(vx, vy, r, terms)
-            vx, vy, r = (
-                vx + delta * (fx / p.mass + vy * r),
-                vy + delta * (fy / p.mass - vx * r),
-                r + delta * mz / p.yaw_inertia,
-            )
-        return _columns(xs.shape, vx, vy, r)
+            rate = self._force_sums(c, terms) / self._rate_divisor
+            coriolis = c[1::-1] * self._coriolis_sign  # [vy, −vx]
+            coriolis *= c[2]
+            rate[:2] += coriolis
+            rate *= delta
+            rate[2] /= p.yaw_inertia
+            out = np.empty(c.shape[::-1])
+            c = np.add(c, rate, out=out.T)
+        return out.reshape(xs.shape)
 
     def h(self, x: Array, u: Any) -> Array:
         """``[ΣF_x/m, ΣF_y/m, r]`` at the state (B.7): ``(3,)``/``(m, 3)`` → same shape."""
         terms = self._terms(u)
         xs = np.asarray(x, dtype=float)
-        vx, vy, r = xs[..., 0], xs[..., 1], xs[..., 2]
-        fx, fy, _ = self._forces(vx, vy, r, terms)
-        m = self.params.mass
-        return _columns(xs.shape, fx / m, fy / m, r)
+        c = _component_rows(xs)
+        out = np.empty(c.shape[::-1])
+        z = out.T
+        np.divide(self._force_sums(c, terms)[:2], self.params.mass, out=z[:2])
+        z[2] = c[2]
+        return out.reshape(xs.shape)
 
     def process_noise_sqrt(self, x: Array, u: Any, dt: float) -> Array:
         """``√Q_k = diag(√(q0 · dt/q_step_dt))`` (B.10 base noise, random-walk scaling)."""
-        return np.diag(self._q0_sqrt * math.sqrt(dt / self.q_step_dt))
+        factor = np.zeros(9)  # np.diag's result, without its Python-level dispatch (once per step)
+        factor[::4] = self._q0_sqrt * math.sqrt(dt / self.q_step_dt)
+        return factor.reshape(3, 3)
 
     def measurement_noise_sqrt(self) -> Array:
         """``√R0 = diag(√r0)`` (B.10 base noise)."""
@@ -321,7 +343,10 @@ class SkidSteerObserverModel:
     # -- for the adaptive filter (B.10) ---------------------------------------
     def tire_sideslip(self, x: Array, u: Any = None) -> Array:
         """Six tire sideslip angles α at the state (paper eq. 6), rad; ``(3,)`` → ``(6,)``."""
-        return tire_sideslips(x, self.params)
+        # tire_sideslips (contact_velocities → tire_sideslip_angles) with the wheel positions kept.
+        xs = np.asarray(x, dtype=float)
+        r_ = xs[..., 2:3]
+        return np.arctan2(xs[..., 1:2] + self._wheel_x * r_, np.abs(xs[..., 0:1] - self._wheel_y * r_))
 
     # -- helpers ----------------------------------------------------------------
     def substep_count(self, u: SkidSteerInput, dt: float) -> int:
@@ -331,7 +356,9 @@ class SkidSteerObserverModel:
     def forces(self, x: Array, u: SkidSteerInput) -> tuple[Array, Array, Array]:
         """``(ΣF_x, ΣF_y, M_z)`` at the state(s) ``x`` ``(..., 3)`` (N, N, N·m)."""
         xs = np.asarray(x, dtype=float)
-        return self._forces(xs[..., 0], xs[..., 1], xs[..., 2], self._terms(u))
+        sums = self._force_sums(_component_rows(xs), self._terms(u))
+        shape = xs.shape[:-1]
+        return sums[0].reshape(shape)[()], sums[1].reshape(shape)[()], sums[2].reshape(shape)[()]
 
     def _substeps(self, terms: _StepTerms, dt: float) -> int:
         if self.max_euler_gain is None:
@@ -351,53 +378,79 @@ class SkidSteerObserverModel:
         if not isinstance(u, SkidSteerInput):
             raise ValueError(f"u must be a SkidSteerInput, got {type(u).__name__}")
         p = self.params
-        omega6 = np.repeat(np.array([u.omega_left, u.omega_right]), 3)
-        rolling = max(min(abs(u.omega_left), abs(u.omega_right)) * p.wheel_radius, p.rolling_speed_floor)
-        normal_load = self._loads(u.ax, u.ay)
+        # The float64 arithmetic of the array form (np.repeat of the side speeds, R ω, V_r, μ F_z,
+        # 3 μ F_z, np.where(limit > 0, limit, 1)), element by element in scalars where numpy's
+        # per-call cost exceeds the arithmetic: + − ×, abs, min, max and the comparisons give the
+        # same floats in both (the inputs are finite, SkidSteerInput checks; a test compares).
+        wl, wr = float(u.omega_left), float(u.omega_right)
+        radius, floor = p.wheel_radius, p.rolling_speed_floor
+        rolling = max(min(abs(wl), abs(wr)) * radius, floor)
+        normal_load = self._loads(u.ax, u.ay)  # floored at 0 already
         friction = p.friction if u.friction is None else u.friction
-        # As theoretical_slips and brush_tire_forces compute them (same operations, same floats).
-        rolling6 = p.wheel_radius * omega6
-        mu_fz = np.asarray(friction, dtype=float) * np.maximum(normal_load, 0.0)
-        limit = 3.0 * mu_fz
+        mu = float(friction)
+        rl, rr = radius * wl, radius * wr
+        fl, fr = max(abs(rl), floor), max(abs(rr), floor)
+        mu_fz = [mu * load for load in normal_load.tolist()]
+        limit = [3.0 * v for v in mu_fz]
+        # One array, a row per per-wheel term (one conversion instead of six).
+        rows = np.array(
+            [
+                [wl, wl, wl, wr, wr, wr],
+                [rl, rl, rl, rr, rr, rr],
+                [fl, fl, fl, fr, fr, fr],
+                mu_fz,
+                limit,
+                [v if v > 0.0 else 1.0 for v in limit],
+            ]
+        )
         terms = _StepTerms(
-            omega6=omega6,
+            omega6=rows[0],
             normal_load=normal_load,
             friction=friction,
             min_rolling_speed=rolling,
-            rolling=rolling6,
-            rolling_floored=np.maximum(np.abs(rolling6), p.rolling_speed_floor),
-            mu_fz=mu_fz,
-            limit=limit,
-            limit_divisor=np.where(limit > 0.0, limit, 1.0),
+            rolling=rows[1],
+            rolling_floored=rows[2],
+            mu_fz=rows[3],
+            limit=rows[4],
+            limit_divisor=rows[5],
         )
         self._cached_input, self._cached_terms = u, terms
         return terms
 
-    def _forces(self, vx: Array, vy: Array, r: Array, terms: _StepTerms) -> tuple[Array, Array, Array]:
-        """Summed brush forces and yaw moment (B.3–B.6) for state components of any shape.
+    def _force_sums(self, c: Array, terms: _StepTerms) -> Array:
+        """Summed brush forces and yaw moment (B.3–B.6) ``[ΣF_x, ΣF_y, M_z]`` ``(3, m)`` at the
+        states whose components are the rows of ``c`` ``(3, m)`` (``vx, vy, r``).
 
         The composition :func:`contact_velocities` → :func:`theoretical_slips` →
         :func:`brush_tire_forces` → :func:`body_forces` of the shared module
-        (:meth:`reference_forces`), operation for operation, so the floats are
-        the same (a test checks), with what depends on the step's input alone
-        taken from ``terms``. Why spelled out: it runs for every sigma point
-        two or three times per filter step, and the shared functions' argument
-        handling (``asarray``, the wheel positions rebuilt per call) cost more
-        than the arithmetic on a ``(7, 6)`` array.
+        (:meth:`reference_forces`), operation for operation on every element, so
+        the floats are the same (a test checks), with what depends on the step's
+        input alone taken from ``terms``. Why spelled out: it runs for every sigma
+        point two or three times per filter step, and the shared functions'
+        argument handling (``asarray``, the wheel positions rebuilt per call) cost
+        more than the arithmetic on a ``(7, 6)`` array. The x and y quantities are
+        stacked (first axis) so each operation runs once for both, with signs
+        folded into constants where IEEE arithmetic makes that exact (``a + b r``
+        as ``a − b' r`` with ``b' = −b``; ``C_α (−v_y/V_r)`` as
+        ``(−C_α)(v_y/V_r)``), and the three per-wheel terms are summed over the
+        wheels in one call (each row of six is reduced on its own: the same sums).
         """
-        xw, yw = self._wheel_x, self._wheel_y
-        r_ = r[..., None]
-        v_x = vx[..., None] - yw * r_
-        v_y = vy[..., None] + xw * r_
-        cx_sx = self.params.longitudinal_stiffness * ((terms.rolling - v_x) / terms.rolling_floored)
-        ca_sy = self.params.cornering_stiffness * (-v_y / terms.rolling_floored)
-        gamma = np.hypot(cx_sx, ca_sy)
-        t = np.minimum(gamma, terms.limit) / terms.limit_divisor
+        # [v_x, v_y] = [vx, vy] − r [y_w, −x_w]  (contact_velocities), shape (2, m, 6)
+        v = c[:2, :, None] - c[2, :, None] * self._contact_arm
+        # [C_x σ_x, C_α σ_y] = [C_x, −C_α] [(R ω − v_x)/V_r, v_y/V_r]  (theoretical_slips, brush_tire_forces)
+        np.subtract(terms.rolling, v[0], out=v[0])
+        v /= terms.rolling_floored
+        v *= self._stiffness
+        gamma = np.hypot(v[0], v[1])
+        t = np.minimum(gamma, terms.limit)
+        t /= terms.limit_divisor
         force = terms.mu_fz * t * (3.0 - 3.0 * t + t * t)
         scale = np.divide(force, gamma, out=np.zeros(gamma.shape), where=gamma > 0.0)
-        fx = cx_sx * scale
-        fy = ca_sy * scale
-        return fx.sum(axis=-1), fy.sum(axis=-1), (xw * fy - yw * fx).sum(axis=-1)
+        per_wheel = np.empty((3, *gamma.shape))
+        fxy = np.multiply(v, scale, out=per_wheel[:2])  # [F_x, F_y]
+        moment = fxy * self._moment_arm  # [−y_w F_x, x_w F_y]
+        np.add(moment[1], moment[0], out=per_wheel[2])  # x_w F_y − y_w F_x (body_forces)
+        return np.add.reduce(per_wheel, axis=-1)  # per_wheel.sum(axis=-1), without its Python wrapper
 
     def _loads(self, ax: float, ay: float) -> Array:
         """:func:`quasi_static_loads` for one ``(a_x, a_y)``, operation for operation (the same
@@ -405,11 +458,12 @@ class SkidSteerObserverModel:
         p = self.params
         xa, s1, s2, d = self._axles
         m, g, h = p.mass, p.gravity, p.cg_height
+        ax, ay = float(ax), float(ay)  # float64 scalars: the same arithmetic, cheaper
         p0 = m * (g * s2 + ax * h * s1) / d
         q = -m * (3.0 * ax * h + g * s1) / d
-        axle = p0 + q * xa
         lateral = m * ay * h / (3.0 * p.track)
-        return np.maximum(np.concatenate([0.5 * axle - lateral, 0.5 * axle + lateral]), 0.0)
+        half = [0.5 * (p0 + q * x) for x in xa]  # 0.5 · axle, axle = p0 + q x_a (scalars: same floats)
+        return np.maximum(np.array([a - lateral for a in half] + [a + lateral for a in half]), 0.0)
 
     def reference_forces(self, x: Array, u: SkidSteerInput) -> tuple[Array, Array, Array]:
         """:meth:`forces` through the shared module's functions, one after the other (the reference
@@ -430,14 +484,12 @@ class SkidSteerObserverModel:
         return body_forces(fx, fy, p)
 
 
-def _columns(shape: tuple[int, ...], a: Array, b: Array, c: Array) -> Array:
-    """``np.stack([a, b, c], axis=-1)`` into a new array of ``shape`` (``(..., 3)``): the same
-    C-ordered result, without ``stack``'s argument handling (f and h return through it)."""
-    out = np.empty(shape)
-    out[..., 0] = a
-    out[..., 1] = b
-    out[..., 2] = c
-    return out
+def _component_rows(xs: Array) -> Array:
+    """The states ``xs`` ``(..., 3)`` as rows of components ``(3, m)`` (``vx``, ``vy``, ``r``): a view
+    where the layout allows."""
+    if xs.shape[-1:] != (3,):
+        raise ValueError(f"x must have shape (3,) or (..., 3), got {xs.shape}")
+    return xs.reshape(-1, 3).T
 
 
 @dataclass(frozen=True)
@@ -513,23 +565,36 @@ def derived_outputs(
     if xs.shape != (3,):
         raise ValueError(f"x must have shape (3,), got {xs.shape}")
     vx, vy, r = xs.tolist()
-    half = 0.5 * p.track * r
-    slip_left = _side_slip(p.wheel_radius * omega_left, vx - half, p.rolling_speed_floor)
-    slip_right = _side_slip(p.wheel_radius * omega_right, vx + half, p.rolling_speed_floor)
     xw, yw = _wheel_xy(p)
-    alpha = tuple(math.atan2(vy + xi * r, abs(vx - yi * r)) for xi, yi in zip(xw, yw, strict=True))
+    return SkidSteerOutputs(*_derived_values(vx, vy, r, omega_left, omega_right, p, min_yaw_rate, xw, yw))
+
+
+def _derived_values(
+    vx: float,
+    vy: float,
+    r: float,
+    omega_left: float,
+    omega_right: float,
+    p: SkidSteerParams,
+    min_yaw_rate: float,
+    xw: tuple[float, ...],
+    yw: tuple[float, ...],
+) -> tuple[float, float, tuple[float, ...], float, float, float, bool, float, float]:
+    """The fields of :func:`derived_outputs` in :class:`SkidSteerOutputs` order, from the state's
+    floats and the wheel positions (``_wheel_xy(p)``; the estimator keeps them)."""
+    half = 0.5 * p.track * r
     valid = abs(r) > min_yaw_rate
     vx_enc, r_enc = encoder_kinematics(omega_left, omega_right, p)
-    return SkidSteerOutputs(
-        slip_left=slip_left,
-        slip_right=slip_right,
-        tire_sideslip=alpha,
-        body_sideslip=math.atan2(vy, vx),
-        icr_x=-vy / r if valid else 0.0,
-        icr_y=vx / r if valid else 0.0,
-        icr_valid=valid,
-        vx_encoder=float(vx_enc),
-        yaw_rate_encoder=float(r_enc),
+    return (
+        _side_slip(p.wheel_radius * omega_left, vx - half, p.rolling_speed_floor),
+        _side_slip(p.wheel_radius * omega_right, vx + half, p.rolling_speed_floor),
+        tuple(math.atan2(vy + xi * r, abs(vx - yi * r)) for xi, yi in zip(xw, yw, strict=True)),
+        math.atan2(vy, vx),
+        -vy / r if valid else 0.0,
+        vx / r if valid else 0.0,
+        valid,
+        float(vx_enc),
+        float(r_enc),
     )
 
 

@@ -21,12 +21,16 @@ than ``timeouts.<key>`` the diagnostics WARN and the estimator does what
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Point, Pose, PoseWithCovariance, Quaternion, Twist, TwistWithCovariance, Vector3
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import Header
 
 from terrain_estimation.estimators.skid_steer import (
     SkidSteerEstimate,
@@ -272,6 +276,9 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SkidSteerEstimatorConf
 
 def estimate_to_state_msg(e: SkidSteerEstimate, frame_id: str) -> SkidSteerState:
     """The contract's SkidSteerState of one estimate (every float finite by the core)."""
+    stamp = sec_to_stamp(e.t)
+    if _FAST_MESSAGES:
+        return _state_msg(e, stamp, frame_id)
     msg = SkidSteerState(
         vx=e.vx,
         vx_variance=e.vx_variance,
@@ -290,7 +297,7 @@ def estimate_to_state_msg(e: SkidSteerEstimate, frame_id: str) -> SkidSteerState
         fading_factor=e.fading_factor,
         noise_scale=e.noise_scale,
     )
-    msg.header.stamp = sec_to_stamp(e.t)
+    msg.header.stamp = stamp
     msg.header.frame_id = frame_id
     return msg
 
@@ -302,8 +309,11 @@ def estimate_to_odom_msg(e: SkidSteerEstimate, odom_frame: str, base_frame: str)
     its covariance is not estimated and is marked unknown (-1 on the diagonal's
     first element, as sensor_msgs does for a field that is not measured).
     """
+    stamp = sec_to_stamp(e.t)
+    if _FAST_MESSAGES:
+        return _odom_msg(e, stamp, odom_frame, base_frame)
     msg = Odometry()
-    msg.header.stamp = sec_to_stamp(e.t)
+    msg.header.stamp = stamp
     msg.header.frame_id = odom_frame
     msg.child_frame_id = base_frame
     msg.pose.pose.position.x = e.x
@@ -314,16 +324,160 @@ def estimate_to_odom_msg(e: SkidSteerEstimate, odom_frame: str, base_frame: str)
     msg.twist.twist.linear.x = e.vx
     msg.twist.twist.linear.y = e.vy
     msg.twist.twist.angular.z = e.yaw_rate
-    # [vx, vy, r] → rows/columns 0, 1, 5 of the 6×6 twist covariance (x, y, z, rx, ry, rz).
-    # A float64 array: the message takes it as it is (a list is checked element by element).
+    msg.twist.covariance = _twist_covariance(e)
+    return msg
+
+
+def _twist_covariance(e: SkidSteerEstimate) -> np.ndarray:
+    """The 6×6 twist covariance (row-major, 36): [vx, vy, r] → rows/columns 0, 1, 5 (x, y, z, rx, ry, rz)."""
     cov = np.zeros(36)
     cov[_TWIST_COV_INDEX] = e.twist_covariance
-    msg.twist.covariance = cov
-    return msg
+    return cov
 
 
 _TWIST_COV_INDEX = np.array([6 * row + col for row in (0, 1, 5) for col in (0, 1, 5)])
 """Where the 3×3 covariance of [vx, vy, r] (row-major) goes in the 6×6 twist covariance."""
+
+# -- message construction without the generated constructors ----------------------------------
+#
+# A generated rclpy message's __init__ builds every field's default (nested messages, 36-element
+# arrays) before the caller overwrites it, and each nested setter runs again on assignment: about
+# 8 µs for an Odometry and 3 µs for a SkidSteerState, twice per IMU sample. The builders below
+# create the same objects (the same slots, the same values and types, ``_check_fields`` False as
+# the constructors set it by default) by filling the slots directly. Only when rclpy does not
+# check fields (ROS_PYTHON_CHECK_FIELDS unset, as the constructors see it) and every class has
+# exactly the slots written here; otherwise the constructors above run. A test compares the two.
+
+_SLOTS: dict[type, tuple[str, ...]] = {
+    Time: ("_sec", "_nanosec"),
+    Header: ("_stamp", "_frame_id"),
+    Point: ("_x", "_y", "_z"),
+    Quaternion: ("_x", "_y", "_z", "_w"),
+    Pose: ("_position", "_orientation"),
+    PoseWithCovariance: ("_pose", "_covariance"),
+    Vector3: ("_x", "_y", "_z"),
+    Twist: ("_linear", "_angular"),
+    TwistWithCovariance: ("_twist", "_covariance"),
+    Odometry: ("_header", "_child_frame_id", "_pose", "_twist"),
+    SkidSteerState: (
+        "_header",
+        "_vx",
+        "_vx_variance",
+        "_vy",
+        "_vy_variance",
+        "_yaw_rate",
+        "_yaw_rate_variance",
+        "_body_sideslip",
+        "_body_sideslip_variance",
+        "_slip_left",
+        "_slip_right",
+        "_tire_sideslip",
+        "_icr_x",
+        "_icr_y",
+        "_icr_valid",
+        "_fading_factor",
+        "_noise_scale",
+    ),
+}
+
+
+def _fast_messages_apply() -> bool:
+    """The slot-filling builders make what the constructors make (see above)."""
+    for cls, slots in _SLOTS.items():
+        module = sys.modules.get(cls.__module__)
+        if getattr(module, "ros_python_check_fields", "1") == "1":
+            return False
+        if tuple(getattr(cls, "__slots__", ())) != (*slots, "_check_fields"):
+            return False
+    return True
+
+
+_FAST_MESSAGES = _fast_messages_apply()
+_POSE_COVARIANCE = np.zeros(36)
+_POSE_COVARIANCE[0] = -1.0  # pose covariance unknown (estimate_to_odom_msg)
+_new = object.__new__
+
+
+def _header(stamp: Time, frame_id: str) -> Header:
+    h = _new(Header)
+    h._check_fields = False
+    h._stamp = stamp
+    h._frame_id = frame_id
+    return h
+
+
+def _time(sec: int, nanosec: int) -> Time:
+    t = _new(Time)
+    t._check_fields = False
+    t._sec = sec
+    t._nanosec = nanosec
+    return t
+
+
+def _vector3(x: float, y: float, z: float, cls: type[Any] = Vector3) -> Any:
+    v = _new(cls)
+    v._check_fields = False
+    v._x = x
+    v._y = y
+    v._z = z
+    return v
+
+
+def _state_msg(e: SkidSteerEstimate, stamp: Time, frame_id: str) -> SkidSteerState:
+    """:func:`estimate_to_state_msg`'s message, slots filled directly (``stamp`` is used as is)."""
+    m = _new(SkidSteerState)
+    m._check_fields = False
+    m._header = _header(stamp, frame_id)
+    m._vx = e.vx
+    m._vx_variance = e.vx_variance
+    m._vy = e.vy
+    m._vy_variance = e.vy_variance
+    m._yaw_rate = e.yaw_rate
+    m._yaw_rate_variance = e.yaw_rate_variance
+    m._body_sideslip = e.body_sideslip
+    m._body_sideslip_variance = e.body_sideslip_variance
+    m._slip_left = e.slip_left
+    m._slip_right = e.slip_right
+    m._tire_sideslip = np.array(e.tire_sideslip, dtype=np.float64)
+    m._icr_x = e.icr_x
+    m._icr_y = e.icr_y
+    m._icr_valid = e.icr_valid
+    m._fading_factor = e.fading_factor
+    m._noise_scale = e.noise_scale
+    return m
+
+
+def _odom_msg(e: SkidSteerEstimate, stamp: Time, odom_frame: str, base_frame: str) -> Odometry:
+    """:func:`estimate_to_odom_msg`'s message, slots filled directly (``stamp`` is used as is)."""
+    orientation = _new(Quaternion)
+    orientation._check_fields = False
+    orientation._x = 0.0
+    orientation._y = 0.0
+    orientation._z = math.sin(0.5 * e.yaw)
+    orientation._w = math.cos(0.5 * e.yaw)
+    pose = _new(Pose)
+    pose._check_fields = False
+    pose._position = _vector3(e.x, e.y, 0.0, Point)
+    pose._orientation = orientation
+    pose_cov = _new(PoseWithCovariance)
+    pose_cov._check_fields = False
+    pose_cov._pose = pose
+    pose_cov._covariance = _POSE_COVARIANCE.copy()
+    twist = _new(Twist)
+    twist._check_fields = False
+    twist._linear = _vector3(e.vx, e.vy, 0.0)
+    twist._angular = _vector3(0.0, 0.0, e.yaw_rate)
+    twist_cov = _new(TwistWithCovariance)
+    twist_cov._check_fields = False
+    twist_cov._twist = twist
+    twist_cov._covariance = _twist_covariance(e)
+    m = _new(Odometry)
+    m._check_fields = False
+    m._header = _header(stamp, odom_frame)
+    m._child_frame_id = base_frame
+    m._pose = pose_cov
+    m._twist = twist_cov
+    return m
 
 
 def _frame(namespace: str, frame: str) -> str:
@@ -394,8 +548,13 @@ class SkidSteerAdapter:
             self.health.reject(f"imu: {exc}")
         out: list[tuple[str, Any]] = []
         for e in self._drain():
-            out.append(("odom", estimate_to_odom_msg(e, self.odom_frame, self.base_frame)))
-            out.append(("state", estimate_to_state_msg(e, self.base_frame)))
+            if _FAST_MESSAGES:
+                stamp = sec_to_stamp(e.t)  # one per estimate; the state message gets its own copy
+                out.append(("odom", _odom_msg(e, stamp, self.odom_frame, self.base_frame)))
+                out.append(("state", _state_msg(e, _time(stamp.sec, stamp.nanosec), self.base_frame)))
+            else:
+                out.append(("odom", estimate_to_odom_msg(e, self.odom_frame, self.base_frame)))
+                out.append(("state", estimate_to_state_msg(e, self.base_frame)))
         return out
 
     def _on_joints(self, t: float, msg: Any) -> None:
@@ -422,9 +581,9 @@ class SkidSteerAdapter:
             h.last_update_time = e.t
             if e.accepted:
                 h.nis.append(e.nis)
+        counts = self.estimator.counter_values()  # the counters' fields, without a snapshot per step
         if estimates:
             last = estimates[-1]
-            c = self.estimator.counters
             beta_deg = math.degrees(last.body_sideslip)
             h.status = f"vx {last.vx:.2f} m/s, yaw rate {last.yaw_rate:.3f} rad/s, sideslip {beta_deg:.1f} deg"
             h.values.update(
@@ -432,9 +591,9 @@ class SkidSteerAdapter:
                 noise_scale=last.noise_scale,
                 slip_left=last.slip_left,
                 slip_right=last.slip_right,
-                **{name: getattr(c, name) for name in c.__dataclass_fields__},
             )
-        h.errors = divergence_errors(self.estimator.fault, self.estimator.counters.divergences)
+            h.values.update(counts)
+        h.errors = divergence_errors(self.estimator.fault, counts["divergences"])
         return estimates
 
 
