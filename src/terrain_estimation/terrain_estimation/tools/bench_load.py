@@ -66,6 +66,11 @@ project's own :class:`~terrain_estimation.ros.framework.EstimatorNode`):
   (:meth:`~terrain_estimation.ros.framework.EstimatorNode._take_queued`),
   about half the executor-thread CPU per message under a backlog.
 
+Every node subscribes to its inputs raw and decodes them itself
+(:mod:`~terrain_estimation.ros.cdr`, ``input.fast_decode``, the default);
+rows labelled ``rclpy-decode`` set ``input.fast_decode`` false, so rclpy's
+``deserialize_message`` decodes them, for comparison in the same run.
+
 QoS and queues (:mod:`terrain_estimation.ros.qos`, CONTRACT.md): sensor topics
 best effort, keep last :data:`~terrain_estimation.ros.qos.SENSOR_DEPTH` on
 both sides (publisher and subscription), so a subscriber takes best-effort and
@@ -160,6 +165,9 @@ class Case:
             the estimator: the same subscriptions (topics, types, QoS, raw) with
             callbacks that only decode and count, so the row measures what
             delivering the messages to Python costs, the floor under any estimator.
+        fast_decode: the nodes' ``input.fast_decode`` (False: rclpy's
+            ``deserialize_message`` decodes the inputs instead of
+            :mod:`~terrain_estimation.ros.cdr`; rows labelled ``rclpy-decode``).
     """
 
     label: str
@@ -173,6 +181,7 @@ class Case:
     processes: int = 1
     vehicle: str = "quarter_car"
     empty_callbacks: bool = False
+    fast_decode: bool = True
 
 
 def cases(quick: bool = False) -> list[Case]:
@@ -183,6 +192,7 @@ def cases(quick: bool = False) -> list[Case]:
         *(Case(f"(a) nominal 1x {ex}", 1, "sim", 1.0, d, executor=ex) for ex in ("single", "events+take")),
         *(Case(f"(b) 1 kHz IMU 1x {ex}", 1, "sim", 1.0, d, 1000.0, ex) for ex in EXECUTORS),
         *(Case(f"(c) bag max {ex}", 1, "bag", 0.0, 0.0, executor=ex) for ex in EXECUTORS),
+        Case("(c) bag max events+take rclpy-decode", 1, "bag", 0.0, 0.0, executor="events+take", fast_decode=False),
         *(Case(f"(c) bag 20x {ex}", 1, "bag", 20.0, 0.0, executor=ex) for ex in EXECUTORS),
         *(
             Case(f"(c) bag 20x {ex} depth {DEEP_QUEUE}", 1, "bag", 20.0, 0.0, executor=ex, sensor_depth=DEEP_QUEUE)
@@ -207,6 +217,16 @@ def cases(quick: bool = False) -> list[Case]:
             for v in ("skid_steer", "rover")
             for x in (0.0, 20.0)
             for ex in (("events", "events+take") if (v, x) == ("skid_steer", 20.0) else ("events+take",))
+        ),
+        Case(
+            "(e) skid_steer bag max events+take rclpy-decode",
+            1,
+            "bag",
+            0.0,
+            0.0,
+            executor="events+take",
+            vehicle="skid_steer",
+            fast_decode=False,
         ),
         # The floor: the same inputs into callbacks that only decode them.
         *(
@@ -402,7 +422,8 @@ def host_main(spec: dict[str, Any]) -> int:
             vehicle,
             namespace=namespace_of(k),
             context=context,
-            overrides={} if executor_kind == "events+take" else {"input.take_queued": 0},
+            overrides=({} if executor_kind == "events+take" else {"input.take_queued": 0})
+            | ({} if spec.get("fast_decode", True) else {"input.fast_decode": False}),
         )
         for k in range(first, first + spec["vehicles"])
     ]
@@ -525,6 +546,7 @@ class _Host:
         vehicle: str = "quarter_car",
         empty_callbacks: bool = False,
         profile: str = "",
+        fast_decode: bool = True,
     ) -> None:
         # The nodes' log (silent-input warnings once the player stops, …): shown only if the host fails.
         self.log = tempfile.TemporaryFile(mode="w+")
@@ -540,6 +562,7 @@ class _Host:
                 "vehicle": vehicle,
                 "empty_callbacks": empty_callbacks,
                 "profile": profile,
+                "fast_decode": fast_decode,
             }
         )
         self.proc = subprocess.Popen(
@@ -643,6 +666,7 @@ def run_case(case: Case, bags_dir: Path = BAGS_DIR, profile_dir: Path | None = N
             case.vehicle,
             case.empty_callbacks,
             _profile_path(profile_dir, case.label, first, case.processes),
+            case.fast_decode,
         )
         for first in range(0, case.vehicles, per_host)
     ]
