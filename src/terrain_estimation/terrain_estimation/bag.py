@@ -17,12 +17,13 @@ sends) and stored with rosbags.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import os
 import shutil
 import sys
 import uuid
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -137,6 +138,8 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) 
     """
     from rclpy.serialization import deserialize_message  # adapters layer: rclpy is fine here
 
+    from terrain_estimation.ros.cdr import decoder_for
+
     bag = Path(path)
     if bag.is_file():
         bag = bag.parent
@@ -148,18 +151,20 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) 
     try:
         with Reader(bag) as reader:
             connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
-            classes = {}
+            # Each topic's decoder: the nodes' (ros/cdr.py, the same objects as rclpy's), else rclpy's.
+            decoders: dict[int, Callable[[bytes], Any]] = {}
             for conn in connections:
                 try:
-                    classes[conn.id] = message_class(conn.msgtype)
+                    cls = message_class(conn.msgtype)
                 except BagError:
                     continue  # a type we do not use: skip its topic
-            connections = [c for c in connections if c.id in classes]
+                decoders[conn.id] = decoder_for(cls) or functools.partial(deserialize_message, message_type=cls)
+            connections = [c for c in connections if c.id in decoders]
             if not connections:
                 return  # rosbags reads every topic when given no connections
             for conn, timestamp, raw in reader.messages(connections=connections):
                 topic = conn.topic
-                msg = deserialize_message(bytes(raw), classes[conn.id])
+                msg = decoders[conn.id](bytes(raw))
                 count += 1
                 yield BagMessage(conn.topic, conn.msgtype, timestamp, msg)
     except BagError:
