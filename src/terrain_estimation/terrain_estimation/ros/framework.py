@@ -519,6 +519,7 @@ class EstimatorNode(_ParamsMixin, Node):
         self._make_adapter = make_adapter
         self.adapter = make_adapter(self.values, self.get_namespace())
         self.messages_handled = 0
+        self.published: dict[str, int] = {}  # output key -> messages published
         self._output_publishers = {
             o.key: self.create_publisher(o.msg_type, o.topic, qos_for(o.kind)) for o in self.adapter.outputs
         }
@@ -731,6 +732,7 @@ class EstimatorNode(_ParamsMixin, Node):
             self._throttled(reason, f"not published: {topic}: {bad[0]} = {bad[1]!r} is not finite", "error")
             return
         self._output_publishers[key].publish(msg)
+        self.published[key] = self.published.get(key, 0) + 1
 
     def _reset_estimator(self) -> None:
         self.adapter.reset()
