@@ -263,12 +263,15 @@ def test_queued_inputs_are_taken_in_stamp_order_and_none_is_lost(
         node.destroy_node()
 
 
-@pytest.mark.parametrize("fast_decode", [True, False])
+@pytest.mark.parametrize(("fast_decode", "take_queued"), [(True, 50), (False, 50), (True, 1)])
 @pytest.mark.parametrize("executor_kind", ["single", "events"])
-def test_bytes_that_do_not_decode_are_rejected_and_the_node_goes_on(rclpy_context, fast_decode, executor_kind):
+def test_bytes_that_do_not_decode_are_rejected_and_the_node_goes_on(
+    rclpy_context, fast_decode, take_queued, executor_kind
+):
     """A sample whose bytes are not its topic's type (a corrupt or mistyped publisher) is rejected
     with a log line and counted; the node keeps running and handles the next messages. rclpy's
-    own take would raise in the executor on such bytes and stop the node."""
+    own take would raise in the executor on such bytes and stop the node. With a take of 1 the
+    corrupt sample is the whole take of its topic (nothing of it to bound the merge by)."""
     import time
 
     from terrain_estimation.ros.qos import SENSOR_QOS
@@ -278,7 +281,10 @@ def test_bytes_that_do_not_decode_are_rejected_and_the_node_goes_on(rclpy_contex
         (),
         TwoTopicRecorder,
         namespace="/veh",
-        parameter_overrides=[Parameter("input.fast_decode", value=fast_decode)],
+        parameter_overrides=[
+            Parameter("input.fast_decode", value=fast_decode),
+            Parameter("input.take_queued", value=take_queued),
+        ],
         context=rclpy_context,
     )
     source = rclpy.create_node("source", namespace="/veh", context=rclpy_context)
@@ -290,22 +296,23 @@ def test_bytes_that_do_not_decode_are_rejected_and_the_node_goes_on(rclpy_contex
         executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
     try:
-        pub = source.create_publisher(PointStamped, "fast", SENSOR_QOS)
+        pubs = {k: source.create_publisher(PointStamped, k, SENSOR_QOS) for k in ("fast", "slow")}
         deadline = time.monotonic() + 10.0
-        while pub.get_subscription_count() == 0:
-            assert time.monotonic() < deadline, "the recorder's subscription was not discovered"
+        while any(p.get_subscription_count() == 0 for p in pubs.values()):
+            assert time.monotonic() < deadline, "the recorder's subscriptions were not discovered"
             time.sleep(0.02)
         good = PointStamped()
         good.header.stamp = sec_to_stamp(1.0)
-        pub.publish(good)
-        pub.publish(b"\x00\x01\x00\x00\xff")  # serialised bytes, cut short: not a PointStamped
+        pubs["slow"].publish(good)  # delivered first: its callback takes from "fast"
+        pubs["fast"].publish(b"\x00\x01\x00\x00\xff")  # serialised bytes, cut short: not a PointStamped
         good.header.stamp = sec_to_stamp(2.0)
-        pub.publish(good)
+        pubs["fast"].publish(good)
+        time.sleep(0.3)  # all three queued
         deadline = time.monotonic() + 10.0
         while node.messages_handled < 3 and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.1)
         assert node.messages_handled == 3
-        assert [t for _, t in node.adapter.seen] == [1.0, 2.0]
+        assert node.adapter.seen == [("slow", 1.0), ("fast", 2.0)]
         assert node.guard.rejected == {"fast: (serialised message) does not decode as PointStamped": 1}
     finally:
         executor.shutdown()

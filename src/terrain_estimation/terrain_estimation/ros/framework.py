@@ -679,8 +679,8 @@ class EstimatorNode(_ParamsMixin, Node):
                             taken.append(_ordered(msg, item[1], key))
             except InvalidHandle:  # the node is being destroyed
                 return
-            if limit and fresh == limit:
-                horizon = min(horizon, taken[-1][0])
+            if limit and fresh == limit:  # (the last one taken may not have decoded: hold all if none did)
+                horizon = min(horizon, taken[-1][0] if taken else -math.inf)
             if taken:
                 sequences.append(taken)
         now = self._clock_s()  # after the takes: every message here was received before it
