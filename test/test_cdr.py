@@ -37,13 +37,17 @@ INPUT_TYPES = _input_types()
 
 
 def _extra_types() -> list[type]:
-    from nav_msgs.msg import Odometry
-    from sensor_msgs.msg import BatteryState, NavSatFix, Range
+    from nav_msgs.msg import OccupancyGrid, Odometry
+    from sensor_msgs.msg import BatteryState, CompressedImage, Joy, NavSatFix, Range
+    from shape_msgs.msg import MeshTriangle
 
     # Odometry: nested arrays and two strings; NavSatFix: int8, uint8, uint16, a
     # fixed array after a variable part; BatteryState: float32, bool, sequences of
-    # float32 and a string sequence after them; Range: float32 only.
-    return [Odometry, NavSatFix, BatteryState, Range]
+    # float32 and a string sequence after them; Range: float32 only; Joy: int32
+    # and float32 sequences; OccupancyGrid: an int8 sequence after nested uint32,
+    # float32 and doubles; CompressedImage: a uint8 sequence; MeshTriangle: a
+    # fixed uint32 array.
+    return [Odometry, NavSatFix, BatteryState, Range, Joy, OccupancyGrid, CompressedImage, MeshTriangle]
 
 
 ALL_TYPES = INPUT_TYPES + _extra_types()
