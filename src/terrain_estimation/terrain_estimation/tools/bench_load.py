@@ -165,6 +165,10 @@ class Case:
             the estimator: the same subscriptions (topics, types, QoS, raw) with
             callbacks that only decode and count, so the row measures what
             delivering the messages to Python costs, the floor under any estimator.
+        bare_node: the host runs the estimator node with its input checks and
+            adapter replaced by functions that do nothing: what the node
+            framework (decoding, take, merge, bookkeeping) costs per message on
+            top of the delivery floor, before any estimator work.
         fast_decode: the nodes' ``input.fast_decode`` (False: rclpy's
             ``deserialize_message`` decodes the inputs instead of
             :mod:`~terrain_estimation.ros.cdr`; rows labelled ``rclpy-decode``).
@@ -181,6 +185,7 @@ class Case:
     processes: int = 1
     vehicle: str = "quarter_car"
     empty_callbacks: bool = False
+    bare_node: bool = False
     fast_decode: bool = True
 
 
@@ -241,6 +246,16 @@ def cases(quick: bool = False) -> list[Case]:
                 empty_callbacks=True,
             )
             for v in ("quarter_car", "skid_steer")
+        ),
+        Case(
+            "(f) bag 20x events+take depth 6000, node without checks and estimator",
+            1,
+            "bag",
+            20.0,
+            0.0,
+            executor="events+take",
+            sensor_depth=DEEP_QUEUE,
+            bare_node=True,
         ),
         Case(
             f"(f) N={fleet[-1]} 1x events, empty callbacks",
@@ -427,6 +442,10 @@ def host_main(spec: dict[str, Any]) -> int:
         )
         for k in range(first, first + spec["vehicles"])
     ]
+    if spec.get("bare_node"):  # the framework alone: checks and adapter that do nothing
+        for node in nodes:
+            node.guard.check = lambda key, msg, now: None
+            node.adapter.handle = lambda key, msg: []
     executor: Any
     if executor_kind.startswith("events"):
         from rclpy.experimental import EventsExecutor
@@ -548,6 +567,7 @@ class _Host:
         empty_callbacks: bool = False,
         profile: str = "",
         fast_decode: bool = True,
+        bare_node: bool = False,
     ) -> None:
         # The nodes' log (silent-input warnings once the player stops, …): shown only if the host fails.
         self.log = tempfile.TemporaryFile(mode="w+")
@@ -564,6 +584,7 @@ class _Host:
                 "empty_callbacks": empty_callbacks,
                 "profile": profile,
                 "fast_decode": fast_decode,
+                "bare_node": bare_node,
             }
         )
         self.proc = subprocess.Popen(
@@ -644,7 +665,7 @@ def run_case(case: Case, bags_dir: Path = BAGS_DIR, profile_dir: Path | None = N
             raise ValueError(f"bench row {case.label!r}: simulated drives are quarter cars only, not {case.vehicle}")
         streams = [simulated_inputs(k, case.duration, case.sensor_rate) for k in range(case.vehicles)]
         expected = sum(expected_estimates(stream) for stream in streams)
-    if case.empty_callbacks:
+    if case.empty_callbacks or case.bare_node:
         expected = 0  # nothing is estimated
     # One time-ordered stream over every vehicle: (stamp ns, vehicle, index, topic, serialised msg).
     # Published serialised, as a bag player does (``ros2 bag play``): the player's CPU goes to
@@ -668,6 +689,7 @@ def run_case(case: Case, bags_dir: Path = BAGS_DIR, profile_dir: Path | None = N
             case.empty_callbacks,
             _profile_path(profile_dir, case.label, first, case.processes),
             case.fast_decode,
+            case.bare_node,
         )
         for first in range(0, case.vehicles, per_host)
     ]
@@ -896,15 +918,23 @@ def _verdicts(rows: Sequence[dict[str, Any]], cpus: int | None = None) -> list[s
         case = r["case"]
         if r["row"].startswith("(a)"):
             continue
-        if case.get("empty_callbacks"):
+        if case.get("empty_callbacks") or case.get("bare_node"):
             offered = r["offered_x_real_time"]
             per_message_us = 1e6 * r["executor_cpu_per_sim_s"] * r["sim_s"] / max(r["consumed"], 1)
+            what = (
+                "the node framework (decoding, take, merge; checks and estimator doing nothing)"
+                if case.get("bare_node")
+                else "message delivery alone (callbacks that only decode and count)"
+            )
+            floor = "the floor under any estimator"
+            if case.get("bare_node"):
+                floor = "the floor under this node's estimators"
             out.append(
-                f"- {r['row']}: message delivery alone (callbacks that only decode and count), at {offered:.1f}x "
+                f"- {r['row']}: {what}, at {offered:.1f}x "
                 f"offered: {r['dropped']} of {r['published']} dropped; the executor thread needs "
                 f"{r['executor_cpu_per_sim_s'] * offered:.2f} CPU s per wall s ({per_message_us:.0f} us per "
                 f"message), the process {r['cpu_per_vehicle_per_sim_s'] * r['vehicles'] * offered:.2f}, "
-                f"the player {r['player_cpu_per_sim_s'] * offered:.2f}: the floor under any estimator"
+                f"the player {r['player_cpu_per_sim_s'] * offered:.2f}: {floor}"
             )
             continue
         if case["factor"] > 0:  # paced (simulated drives at 1x, bag replays at 20x): did the node follow?
