@@ -37,8 +37,8 @@ from terrain_estimation.filters.adaptive import StrongTrackingConfig, suboptimal
 from terrain_estimation.filters.an_stukf import AdaptiveStrongTrackingUKF
 from terrain_estimation.filters.base import GaussianState, nis_gate
 from terrain_estimation.filters.kalman import symmetrise, whiten_innovation
-from terrain_estimation.filters.sigma_points import robust_sqrt
-from terrain_estimation.filters.ukf import UnscentedKalmanFilter, _cholesky, _sqrt_factor, _whitened
+from terrain_estimation.filters.sigma_points import cholesky, robust_sqrt, solve_lower, tria
+from terrain_estimation.filters.ukf import UnscentedKalmanFilter
 from terrain_estimation.models.skid_steer import SkidSteerParams, quasi_static_loads, tire_sideslip_angles
 from terrain_estimation.models.skid_steer_observer import SkidSteerInput, SkidSteerObserverModel, tire_sideslips
 
@@ -51,7 +51,7 @@ BAG = Path(__file__).resolve().parents[1] / "bags" / "skid_steer_s_shape"
 
 def _propagate_reference(ukf: UnscentedKalmanFilter, x, P, L, model, u, dt):
     ps = ukf.point_set(x.shape[0])
-    X = x + ps.unit @ robust_sqrt(P).T
+    X = x + ps.unit @ _robust_sqrt_reference(P).T
     Xp = np.asarray(model.f(X, u, dt), dtype=float)
     x_new = ps.Wm @ Xp
     D = Xp - x_new
@@ -60,7 +60,7 @@ def _propagate_reference(ukf: UnscentedKalmanFilter, x, P, L, model, u, dt):
 
 def _moments_reference(ukf: UnscentedKalmanFilter, x, P, Rs, model, u):
     ps = ukf.point_set(x.shape[0])
-    dX = ps.unit @ robust_sqrt(P).T
+    dX = ps.unit @ _robust_sqrt_reference(P).T
     Z = np.asarray(model.h(x + dX, u), dtype=float)
     z_hat = ps.Wm @ Z
     dZ_w = (Z - z_hat).T * ps.Wc
@@ -70,7 +70,7 @@ def _moments_reference(ukf: UnscentedKalmanFilter, x, P, Rs, model, u):
 
 def _update_reference(ukf: UnscentedKalmanFilter, x, P, z, z_hat, P_zz, P_xz):
     nu = z - z_hat
-    _, Y, w, nis = whiten_innovation(P_zz, P_xz, nu)
+    _, Y, w, nis = _whiten_reference(P_zz, P_xz, nu)
     if not nis_gate(nis, ukf.gate_threshold):
         return x, P, nu, nis, False
     return x + Y.T @ w, symmetrise(P - Y.T @ Y), nu, nis, True
@@ -170,16 +170,38 @@ def _filter_cases(n: int = 150):
 # -- filters ---------------------------------------------------------------------------------------
 
 
+def _robust_sqrt_reference(P):
+    """robust_sqrt as first written: np.linalg.cholesky, else the PSD projection."""
+    try:
+        return np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        w, V = np.linalg.eigh(0.5 * (P + P.T))
+        return tria(V * np.sqrt(np.clip(w, 0.0, None)))
+
+
+def _whiten_reference(P_zz, P_xz, nu):
+    """whiten_innovation as first written: np.linalg.cholesky and np.column_stack."""
+    n = P_xz.shape[0]
+    try:
+        L = np.linalg.cholesky(P_zz)
+    except np.linalg.LinAlgError:
+        p = P_zz.shape[0]
+        nan = np.full((p, p + n + 1), np.nan)
+        return nan[:, :p], nan[:, p : p + n], nan[:, p + n], float("inf")
+    sol = solve_lower(L, np.column_stack([P_xz.T, nu]))
+    return L, sol[:, :n], sol[:, n], float(sol[:, n] @ sol[:, n])
+
+
 def test_cholesky_is_numpys_bit_for_bit_and_fails_the_same_way():
     rng = np.random.default_rng(RNG_SEED)
     for n in (1, 2, 3, 5):
         for _ in range(200):
             P = _random_spd(rng, n)
-            assert np.array_equal(_cholesky(P), np.linalg.cholesky(P))
-            assert np.array_equal(_sqrt_factor(P), robust_sqrt(P))
+            assert np.array_equal(cholesky(P), np.linalg.cholesky(P))
+            assert np.array_equal(robust_sqrt(P), _robust_sqrt_reference(P))
     # Other dtypes go through np.linalg (its casts): the same result and dtype.
     P32 = _random_spd(rng, 3).astype(np.float32)
-    assert _cholesky(P32).dtype == np.float32 and np.array_equal(_cholesky(P32), np.linalg.cholesky(P32))
+    assert cholesky(P32).dtype == np.float32 and np.array_equal(cholesky(P32), np.linalg.cholesky(P32))
     # Not positive definite: LinAlgError where np.linalg raises, and the PSD projection for the points;
     # NaN: whatever np.linalg gives (here a NaN factor, LAPACK's comparison does not see it).
     for bad in (np.diag([1.0, -1e-12, 2.0]), np.zeros((3, 3)), np.ones((3, 3)), np.full((3, 3), np.nan)):
@@ -187,24 +209,22 @@ def test_cholesky_is_numpys_bit_for_bit_and_fails_the_same_way():
             expected = np.linalg.cholesky(bad)
         except np.linalg.LinAlgError:
             with pytest.raises(np.linalg.LinAlgError, match="not positive definite"):
-                _cholesky(bad)
-            assert np.array_equal(_sqrt_factor(bad), robust_sqrt(bad))
+                cholesky(bad)
+            assert np.array_equal(robust_sqrt(bad), _robust_sqrt_reference(bad))
         else:
-            assert np.array_equal(_cholesky(bad), expected, equal_nan=True)
+            assert np.array_equal(cholesky(bad), expected, equal_nan=True)
 
 
-def test_whitening_is_whiten_innovations():
+def test_whitening_is_the_former_whiten_innovation():
     rng = np.random.default_rng(RNG_SEED + 1)
     for _ in range(300):
         P_zz = _random_spd(rng, 3)
         P_xz = rng.normal(size=(3, 3)) * 0.1
         nu = rng.normal(size=3)
-        _, Y, w, nis = whiten_innovation(P_zz, P_xz, nu)
-        Y2, w2, nis2 = _whitened(P_zz, P_xz, nu)
-        assert np.array_equal(Y, Y2) and np.array_equal(w, w2) and nis == nis2
-    _, Y, w, nis = whiten_innovation(-np.eye(3), np.ones((3, 3)), np.ones(3))
-    Y2, w2, nis2 = _whitened(-np.eye(3), np.ones((3, 3)), np.ones(3))
-    assert nis == nis2 == math.inf and np.isnan(Y2).all() and np.isnan(w2).all()
+        got, ref = whiten_innovation(P_zz, P_xz, nu), _whiten_reference(P_zz, P_xz, nu)
+        assert all(np.array_equal(a, b) for a, b in zip(got[:3], ref[:3], strict=True)) and got[3] == ref[3]
+    L, Y, w, nis = whiten_innovation(-np.eye(3), np.ones((3, 3)), np.ones(3))
+    assert nis == math.inf and np.isnan(L).all() and np.isnan(Y).all() and np.isnan(w).all()
 
 
 def test_ukf_public_methods_are_the_former_forms():

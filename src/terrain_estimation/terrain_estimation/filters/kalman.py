@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
 from .base import Array, GaussianState, UpdateInfo, check_square, check_vector, nis_gate
-from .sigma_points import solve_lower
+from .sigma_points import cholesky, solve_lower
 
 __all__ = [
     "KalmanFilter",
@@ -152,13 +152,16 @@ def whiten_innovation(
         measurement instead of the filter dividing by a broken covariance.
     """
     n = P_xz.shape[0]
+    p = P_zz.shape[0]
     try:
-        L = cast(Array, np.linalg.cholesky(P_zz))
+        L = cholesky(P_zz)
     except np.linalg.LinAlgError:
-        p = P_zz.shape[0]
         nan = np.full((p, p + n + 1), np.nan)
         return nan[:, :p], nan[:, p : p + n], nan[:, p + n], float("inf")
-    sol = solve_lower(L, np.column_stack([P_xz.T, nu]))
+    rhs = np.empty((p, n + 1))  # [P_xzᵀ, ν] (np.column_stack's values, one call)
+    rhs[:, :n] = P_xz.T
+    rhs[:, n] = nu
+    sol = solve_lower(L, rhs)
     w = sol[:, n]
     return L, sol[:, :n], w, float(w @ w)
 

@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -271,6 +271,35 @@ def _lower_mask(n: int) -> NDArray[np.bool_]:
     return mask
 
 
+try:
+    # The gufunc behind np.linalg.cholesky (numpy's own LAPACK), called as np.linalg.cholesky calls it.
+    from numpy.linalg import _umath_linalg
+
+    _CHOLESKY_LO: Any = _umath_linalg.cholesky_lo
+except (ImportError, AttributeError):  # pragma: no cover - another numpy layout: the public function
+    _CHOLESKY_LO = None
+
+
+def _raise_not_positive_definite(err: str, flag: int) -> None:
+    raise np.linalg.LinAlgError("Matrix is not positive definite")
+
+
+def cholesky(P: Array) -> Array:
+    """``np.linalg.cholesky(P)``, bit for bit, without the wrapper's argument handling for a float64 array.
+
+    The same gufunc under the same floating-point error state (a matrix that
+    is not positive definite raises ``numpy.linalg.LinAlgError``); the
+    wrapper's type and shape dispatch cost more than factoring the 3×3
+    matrices of the skid-steer filter, three times per step. Anything but a
+    float64 ndarray (or a numpy without that gufunc) goes through
+    ``np.linalg.cholesky`` itself.
+    """
+    if _CHOLESKY_LO is None or type(P) is not np.ndarray or P.dtype != np.float64:
+        return np.asarray(np.linalg.cholesky(P))
+    with np.errstate(call=_raise_not_positive_definite, invalid="call", over="ignore", divide="ignore", under="ignore"):
+        return np.asarray(_CHOLESKY_LO(P, signature="d->d"))
+
+
 def robust_sqrt(P: Array) -> Array:
     """Lower-triangular factor ``S`` with ``S Sᵀ ≈ P`` that never fails on a PSD ``P``.
 
@@ -291,7 +320,7 @@ def robust_sqrt(P: Array) -> Array:
         non-finite factor or raises ``numpy.linalg.LinAlgError``.
     """
     try:
-        return cast(Array, np.linalg.cholesky(P))
+        return cholesky(P)
     except np.linalg.LinAlgError:
         w, V = np.linalg.eigh(0.5 * (P + P.T))
         return tria(V * np.sqrt(np.clip(w, 0.0, None)))

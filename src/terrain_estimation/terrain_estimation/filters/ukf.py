@@ -42,8 +42,9 @@ from .kalman import (
     check_measurement,
     initial_gaussian,
     symmetrise,
+    whiten_innovation,
 )
-from .sigma_points import SigmaPointSet, merwe_scaled_sigma_points, robust_sqrt, solve_lower
+from .sigma_points import SigmaPointSet, merwe_scaled_sigma_points, robust_sqrt
 
 __all__ = [
     "SigmaPointKalmanFilter",
@@ -52,61 +53,6 @@ __all__ = [
     "UnscentedKalmanFilter",
     "check_points",
 ]
-
-
-try:
-    # The gufunc behind np.linalg.cholesky (numpy's own LAPACK), called as np.linalg.cholesky calls it.
-    from numpy.linalg import _umath_linalg
-
-    _CHOLESKY_LO: Any = _umath_linalg.cholesky_lo
-except (ImportError, AttributeError):  # pragma: no cover - another numpy layout: the public function
-    _CHOLESKY_LO = None
-
-
-def _raise_not_positive_definite(err: str, flag: int) -> None:
-    raise np.linalg.LinAlgError("Matrix is not positive definite")
-
-
-def _cholesky(P: Array) -> Array:
-    """``np.linalg.cholesky(P)`` for a float64 ``(n, n)`` array, without the wrapper's argument handling.
-
-    The same gufunc under the same floating-point error state (a matrix that is
-    not positive definite raises LinAlgError), so the same factor bit for bit
-    (a test compares them); the wrapper's type and shape dispatch cost more than
-    the factorisation of a 3×3 matrix, three times per filter step.
-    """
-    if _CHOLESKY_LO is None or type(P) is not np.ndarray or P.dtype != np.float64:
-        return np.asarray(np.linalg.cholesky(P))  # other types: the wrapper's casts and wrapping
-    with np.errstate(call=_raise_not_positive_definite, invalid="call", over="ignore", divide="ignore", under="ignore"):
-        return np.asarray(_CHOLESKY_LO(P, signature="d->d"))
-
-
-def _sqrt_factor(P: Array) -> Array:
-    """:func:`~.sigma_points.robust_sqrt` of a float64 ``(n, n)`` array, its Cholesky through :func:`_cholesky`."""
-    try:
-        return _cholesky(P)
-    except np.linalg.LinAlgError:
-        return robust_sqrt(P)  # the PSD projection (its Cholesky fails the same way first)
-
-
-def _whitened(P_zz: Array, P_xz: Array, nu: Array) -> tuple[Array, Array, float]:
-    """``(Y, w, NIS)`` of :func:`~.kalman.whiten_innovation` for float64 arrays, its Cholesky through
-    :func:`_cholesky` and the right-hand side ``[P_xzᵀ, ν]`` written into one array (the same
-    values as its ``column_stack``); ``NIS = inf`` (and ``Y``, ``w`` NaN) if ``P_zz`` is not
-    positive definite."""
-    n = P_xz.shape[0]
-    p = nu.shape[0]
-    try:
-        L = _cholesky(P_zz)
-    except np.linalg.LinAlgError:
-        nan = np.full((p, n + 1), np.nan)
-        return nan[:, :n], nan[:, n], float("inf")
-    rhs = np.empty((p, n + 1))
-    rhs[:, :n] = P_xz.T
-    rhs[:, n] = nu
-    sol = solve_lower(L, rhs)
-    w = sol[:, n]
-    return sol[:, :n], w, float(w @ w)
 
 
 def check_points(name: str, value: Any, m: int, d: int) -> Array:
@@ -219,7 +165,7 @@ class SigmaPointKalmanFilter(ABC):
         """
         n = x.shape[0]
         ps = self.point_set(n)
-        X = x + ps.unit @ _sqrt_factor(P).T
+        X = x + ps.unit @ robust_sqrt(P).T
         Xp = check_points("model.f", model.f(X, u, dt), ps.num_points, n)
         x_new = ps.Wm @ Xp
         D = Xp - x_new
@@ -289,7 +235,7 @@ class SigmaPointKalmanFilter(ABC):
         ``(n,)``, ``P`` ``(n, n)`` and factor ``Rs`` ``(p, r)`` (only the model's output is checked)."""
         n = x.shape[0]
         ps = self.point_set(n)
-        dX = ps.unit @ _sqrt_factor(P).T  # χ − x̄ (the points are centred on x̄)
+        dX = ps.unit @ robust_sqrt(P).T  # χ − x̄ (the points are centred on x̄)
         Z = check_points("model.h", model.h(x + dX, u), ps.num_points, Rs.shape[0])
         z_hat = ps.Wm @ Z
         dZ = Z - z_hat
@@ -345,7 +291,7 @@ class SigmaPointKalmanFilter(ABC):
         self, x: Any, P: Any, nu: Array, P_zz: Array, P_xz: Array
     ) -> tuple[tuple[Array, Array] | None, float]:
         """The gated gain step of :meth:`update`: ``((x̂, P), NIS)``, or ``(None, NIS)`` when the gate rejects."""
-        Y, w, nis = _whitened(P_zz, P_xz, nu)  # whiten_innovation's Y, w, NIS
+        _, Y, w, nis = whiten_innovation(P_zz, P_xz, nu)
         threshold = self.gate_threshold
         if not (math.isfinite(nis) and (threshold is None or nis <= threshold)):  # nis_gate, for a float
             return None, nis
