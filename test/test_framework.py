@@ -181,6 +181,29 @@ class TwoTopicRecorder:
         pass
 
 
+def _executor(kind, context):
+    """What spin_node runs (``"events"``) or rclpy's wait-based executor (``"single"``)."""
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor(context=context)
+    return SingleThreadedExecutor(context=context)
+
+
+def _two_topic_publishers(source):
+    """Publishers of TwoTopicRecorder's topics, once its subscriptions are discovered."""
+    import time
+
+    from terrain_estimation.ros.qos import SENSOR_QOS
+
+    pubs = {k: source.create_publisher(PointStamped, k, SENSOR_QOS) for k in ("fast", "slow")}
+    deadline = time.monotonic() + 10.0
+    while any(p.get_subscription_count() == 0 for p in pubs.values()):
+        assert time.monotonic() < deadline, "the recorder's subscriptions were not discovered"
+        time.sleep(0.02)
+    return pubs
+
+
 @pytest.mark.parametrize("executor_kind", ["single", "events"])
 @pytest.mark.parametrize(
     ("take_queued", "sim_time", "fast_decode"),
@@ -197,7 +220,6 @@ def test_queued_inputs_are_taken_in_stamp_order_and_none_is_lost(
     import time
 
     from terrain_estimation.ros.cdr import decoder_for
-    from terrain_estimation.ros.qos import SENSOR_QOS
 
     node = EstimatorNode(
         "recorder",
@@ -214,19 +236,10 @@ def test_queued_inputs_are_taken_in_stamp_order_and_none_is_lost(
     decoders = [decode for _, _, decode in node._input_subscriptions]
     assert all((d is decoder_for(PointStamped)) == fast_decode for d in decoders)
     source = rclpy.create_node("source", namespace="/veh", context=rclpy_context)
-    if executor_kind == "events":  # what spin_node runs
-        from rclpy.experimental import EventsExecutor
-
-        executor = EventsExecutor(context=rclpy_context)
-    else:
-        executor = SingleThreadedExecutor(context=rclpy_context)
+    executor = _executor(executor_kind, rclpy_context)
     executor.add_node(node)
     try:
-        pubs = {k: source.create_publisher(PointStamped, k, SENSOR_QOS) for k in ("fast", "slow")}
-        deadline = time.monotonic() + 10.0
-        while any(p.get_subscription_count() == 0 for p in pubs.values()):
-            assert time.monotonic() < deadline, "the recorder's subscriptions were not discovered"
-            time.sleep(0.02)
+        pubs = _two_topic_publishers(source)
         # The slow topic first (as a driver whose messages arrive late), then the fast one.
         # 30 fast messages: a take of 5 empties the queue exactly, so the last slow one (after
         # them) is held with nothing left queued to wake the node: the guard condition must.
@@ -274,8 +287,6 @@ def test_bytes_that_do_not_decode_are_rejected_and_the_node_goes_on(
     corrupt sample is the whole take of its topic (nothing of it to bound the merge by)."""
     import time
 
-    from terrain_estimation.ros.qos import SENSOR_QOS
-
     node = EstimatorNode(
         "recorder",
         (),
@@ -288,19 +299,10 @@ def test_bytes_that_do_not_decode_are_rejected_and_the_node_goes_on(
         context=rclpy_context,
     )
     source = rclpy.create_node("source", namespace="/veh", context=rclpy_context)
-    if executor_kind == "events":
-        from rclpy.experimental import EventsExecutor
-
-        executor = EventsExecutor(context=rclpy_context)
-    else:
-        executor = SingleThreadedExecutor(context=rclpy_context)
+    executor = _executor(executor_kind, rclpy_context)
     executor.add_node(node)
     try:
-        pubs = {k: source.create_publisher(PointStamped, k, SENSOR_QOS) for k in ("fast", "slow")}
-        deadline = time.monotonic() + 10.0
-        while any(p.get_subscription_count() == 0 for p in pubs.values()):
-            assert time.monotonic() < deadline, "the recorder's subscriptions were not discovered"
-            time.sleep(0.02)
+        pubs = _two_topic_publishers(source)
         good = PointStamped()
         good.header.stamp = sec_to_stamp(1.0)
         pubs["slow"].publish(good)  # delivered first: its callback takes from "fast"
