@@ -251,7 +251,6 @@ class SigmaPointKalmanFilter(ABC):
         u: Any = None,
         *,
         measurement_noise_sqrt: Any = None,
-        moments: MeasurementMoments | None = None,
     ) -> tuple[GaussianState, UpdateInfo]:
         """Measurement update, gated on the NIS ``νᵀ P_zz⁻¹ ν``.
 
@@ -262,23 +261,13 @@ class SigmaPointKalmanFilter(ABC):
             u: input passed to ``h``.
             measurement_noise_sqrt: ``(p, r)`` factor of ``R`` overriding the
                 model's for this update (noise-adaptive filters).
-            moments: :meth:`measurement_moments` of this very ``state``, ``u``
-                and noise, when the caller has them already (strong tracking
-                computes them before deciding on the fading factor; with
-                ``λ = 1`` the update would redraw the same points and run
-                ``h`` again for the same numbers). ``measurement_noise_sqrt``
-                is then not used.
 
         Returns:
             ``(posterior, info)``; the prior itself with ``info.accepted=False``
             when the gate rejects.
         """
         zv = check_measurement(z, model.measurement_dim)
-        mm = (
-            moments
-            if moments is not None
-            else self.measurement_moments(state, model, u, measurement_noise_sqrt=measurement_noise_sqrt)
-        )
+        mm = self.measurement_moments(state, model, u, measurement_noise_sqrt=measurement_noise_sqrt)
         nu = zv - mm.z_hat
         post, nis = self._gain_update(state.x, state.P, nu, mm.P_zz, mm.P_xz)
         if post is None:
