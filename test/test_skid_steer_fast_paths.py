@@ -268,7 +268,7 @@ def test_an_stukf_step_is_the_former_composition():
 # -- model -----------------------------------------------------------------------------------------
 
 
-def test_model_f_h_and_tire_sideslip_are_the_former_forms():
+def test_model_f_h_and_forces_are_the_former_forms():
     model = SkidSteerObserverModel()
     rng = np.random.default_rng(RNG_SEED + 2)
     for k in range(150):
@@ -280,7 +280,6 @@ def test_model_f_h_and_tire_sideslip_are_the_former_forms():
             assert f.shape == shape and f.flags.c_contiguous and np.array_equal(f, _f_reference(model, x, u, dt))
             h = model.h(x, u)
             assert h.shape == shape and h.flags.c_contiguous and np.array_equal(h, _h_reference(model, x, u))
-            assert np.array_equal(model.tire_sideslip(x, u), tire_sideslips(x, model.params))
             for a, b in zip(model.forces(x, u), model.reference_forces(x, u), strict=True):
                 assert type(a) is type(b) and a.shape == shape[:-1] and np.array_equal(a, b)
     with pytest.raises(ValueError, match="shape"):

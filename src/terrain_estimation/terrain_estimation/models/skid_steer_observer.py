@@ -343,10 +343,7 @@ class SkidSteerObserverModel:
     # -- for the adaptive filter (B.10) ---------------------------------------
     def tire_sideslip(self, x: Array, u: Any = None) -> Array:
         """Six tire sideslip angles α at the state (paper eq. 6), rad; ``(3,)`` → ``(6,)``."""
-        # tire_sideslips (contact_velocities → tire_sideslip_angles) with the wheel positions kept.
-        xs = np.asarray(x, dtype=float)
-        r_ = xs[..., 2:3]
-        return np.arctan2(xs[..., 1:2] + self._wheel_x * r_, np.abs(xs[..., 0:1] - self._wheel_y * r_))
+        return tire_sideslips(x, self.params)
 
     # -- helpers ----------------------------------------------------------------
     def substep_count(self, u: SkidSteerInput, dt: float) -> int:
