@@ -310,11 +310,10 @@ def _random_point_set(model: Any, rng: np.random.Generator) -> tuple[np.ndarray,
 
 
 @pytest.mark.parametrize("index", range(5))
-def test_propagate_is_f_and_the_process_noise_factor(index: int) -> None:
-    """One shared (m + 1) discretisation gives f's points and √Q_k of the mean, bit for bit.
+def test_f_and_the_process_noise_factor_are_the_plain_forms(index: int) -> None:
+    """``f`` (stacked series, sub-step loop) and ``√Q_k`` (with its cache) against the forms written out, bit for bit.
 
-    Step lengths repeat (noise-cache hits) and change; the cache's factor
-    is checked afterwards through the public method too.
+    Step lengths repeat (noise-cache hits) and change.
     """
     model = _models()[index]
     rng = np.random.default_rng(RNG_SEED + 10 + index)
@@ -326,23 +325,11 @@ def test_propagate_is_f_and_the_process_noise_factor(index: int) -> None:
         u = rng.standard_normal(int(rng.integers(1, 14))) * 0.05
         dt = dts[i % len(dts)]
         pts_before = pts.copy()
-        y, lq = model._propagate(pts, x, u, dt)
+        assert np.array_equal(model.f(pts, u, dt), _f_reference(model, pts, u, dt))
         assert np.array_equal(pts, pts_before)
-        assert np.array_equal(y, _f_reference(model, pts, u, dt))
+        lq = model.process_noise_sqrt(x, u, dt)
         assert np.array_equal(lq, _noise_reference(model, x, dt))
         assert np.array_equal(model.process_noise_sqrt(x, u, dt), lq)
-        assert np.array_equal(model.f(pts, u, dt), y)
-
-
-def test_propagate_with_expm_calls_the_two_methods() -> None:
-    model = QuarterCarModel(QuarterCarParams(discretisation="expm"))
-    rng = np.random.default_rng(RNG_SEED + 20)
-    x, pts = _random_point_set(model, rng)
-    u = rng.standard_normal(10) * 0.05
-    y, lq = model._propagate(pts, x, u, 0.01)
-    fresh = QuarterCarModel(QuarterCarParams(discretisation="expm"))
-    assert np.array_equal(y, fresh.f(pts, u, 0.01))
-    assert np.array_equal(lq, fresh.process_noise_sqrt(x, u, 0.01))
 
 
 class _ReferenceSCKF(SquareRootCubatureKalmanFilter):
@@ -398,10 +385,10 @@ class _ReferenceSCKF(SquareRootCubatureKalmanFilter):
 
 @pytest.mark.parametrize("index", range(5))
 @pytest.mark.parametrize("gate", [None, 3.0])
-def test_sckf_fast_entries_equal_the_reference_filter(index: int, gate: float | None) -> None:
-    """_predict_fast/_update_fast against the SCKF as first written and against the public methods."""
+def test_sckf_public_methods_equal_the_reference_filter(index: int, gate: float | None) -> None:
+    """SCKF.predict/update (LAPACK tria, one whitening solve) against the SCKF as first written, bit for bit."""
     model = _models()[index]
-    fast = SquareRootCubatureKalmanFilter(gate_threshold=gate)
+    filt = SquareRootCubatureKalmanFilter(gate_threshold=gate)
     ref = _ReferenceSCKF(gate_threshold=gate)
     rng = np.random.default_rng(RNG_SEED + 30 + index)
     n, p = model.state_dim, model.measurement_dim
@@ -410,57 +397,26 @@ def test_sckf_fast_entries_equal_the_reference_filter(index: int, gate: float | 
         x, _ = _random_point_set(model, rng)
         p0 = np.diag(np.abs(rng.standard_normal(n)) * 1e-4)
         p0[-1, -1] = 1e8 if model.stiffness_state == "k_tot" else 0.3
-        state = fast.initial_state(x, p0)
+        state = filt.initial_state(x, p0)
         hdot = rng.standard_normal(10) * 0.05
         u = StepInput(hdot, float(rng.standard_normal())) if rng.random() < 0.5 else hdot
         dt = 0.01
-        x_pred, S_pred = fast._predict_fast(state.x, state.S, model._propagate, u, dt)  # noqa: N806
-        fresh = type(model)(model.params)
-        prior = ref.predict(state, fresh, u, dt)
-        assert np.array_equal(x_pred, prior.x) and np.array_equal(S_pred, prior.S)
-        public = fast.predict(state, type(model)(model.params), u, dt)
+        prior = ref.predict(state, type(model)(model.params), u, dt)
+        public = filt.predict(state, type(model)(model.params), u, dt)
         assert np.array_equal(public.x, prior.x) and np.array_equal(public.S, prior.S)
         z = rng.standard_normal(p) * 3.0
         rs = None if rng.random() < 0.3 else np.linalg.cholesky(np.diag(rng.uniform(0.3, 1.0, p)))
-        nis, post = fast._update_fast(
-            x_pred, S_pred, z, model.h, u, model.measurement_noise_sqrt() if rs is None else rs
-        )
         ref_post, info = ref.update(prior, z, model, u, measurement_noise_sqrt=rs)
-        assert nis == info.nis and (post is not None) == info.accepted
-        pub_post, pub_info = fast.update(prior, z, model, u, measurement_noise_sqrt=rs)
+        pub_post, pub_info = filt.update(prior, z, model, u, measurement_noise_sqrt=rs)
         assert pub_info.nis == info.nis and pub_info.accepted == info.accepted
         assert np.array_equal(pub_info.innovation_cov, info.innovation_cov)
-        if post is None:
+        if not info.accepted:
             rejected += 1
             assert pub_post is prior
         else:
             accepted += 1
-            assert np.array_equal(post[0], ref_post.x) and np.array_equal(post[1], ref_post.S)
             assert np.array_equal(pub_post.x, ref_post.x) and np.array_equal(pub_post.S, ref_post.S)
     assert accepted > 0 and (gate is None or rejected > 0)
-
-
-class _OverflowingModel(QuarterCarModel):
-    """f overflows on one point (the filters' cue to fail the step)."""
-
-    def f(self, x: Any, u: Any, dt: float) -> Any:
-        y = super().f(x, u, dt)
-        y[3, 1] = np.inf
-        return y
-
-    def _propagate(self, pts: Any, x_mean: Any, u: Any, dt: float) -> tuple[Any, Any]:
-        return self.f(pts, u, dt), self.process_noise_sqrt(x_mean, u, dt)
-
-
-def test_sckf_fast_predict_raises_on_non_finite_points_as_predict() -> None:
-    model = _OverflowingModel()
-    filt = SquareRootCubatureKalmanFilter()
-    state = filt.initial_state(np.array([0.0, 0.0, 0.0, 0.0, 8e4]), np.diag([1e-4, 1e-2, 1e-4, 1e-2, 1e8]))
-    u = np.zeros(10)
-    with pytest.raises(ValueError, match="non-finite"):
-        filt.predict(state, model, u, 0.01)
-    with pytest.raises(ValueError, match="non-finite"):
-        filt._predict_fast(state.x, state.S, model._propagate, u, 0.01)
 
 
 def _estimate_key(e: Any) -> tuple[Any, ...]:
@@ -474,6 +430,37 @@ def _estimate_key(e: Any) -> tuple[Any, ...]:
         else:
             out.append(v)
     return tuple(out)
+
+
+def _float_of_key(v: Any) -> float | None:
+    """The float an :func:`_estimate_key` entry stands for, None if it is not one."""
+    if isinstance(v, str):
+        try:
+            return float.fromhex(v)
+        except ValueError:
+            return None
+    return None
+
+
+def _stream_spread(got: Any, want: Any, path: str = "stream") -> float:
+    """Largest relative difference of the floats of two :func:`_run_stream` outputs; everything else must be equal.
+
+    Relative to the larger magnitude, at least 1e-9 (state components near zero).
+    """
+    if isinstance(want, (list, tuple)):
+        assert type(got) is type(want) and len(got) == len(want), path
+        return max(
+            (_stream_spread(g, w, f"{path}[{i}]") for i, (g, w) in enumerate(zip(got, want, strict=True))),
+            default=0.0,
+        )
+    g, w = _float_of_key(got), _float_of_key(want)
+    if g is None or w is None:
+        assert got == want, path
+        return 0.0
+    if math.isnan(g) or math.isnan(w):
+        assert math.isnan(g) and math.isnan(w), path
+        return 0.0
+    return abs(g - w) / max(abs(g), abs(w), 1e-9)
 
 
 def _run_stream(est: SoilStiffnessEstimator, events: list[tuple[Any, ...]]) -> list[Any]:
@@ -492,13 +479,15 @@ def _run_stream(est: SoilStiffnessEstimator, events: list[tuple[Any, ...]]) -> l
     return out
 
 
-def _stream(seed: int, vehicle: str, *, hostile: bool, seconds: float = 3.0) -> list[tuple[Any, ...]]:
+def _stream(
+    seed: int, vehicle: str, *, hostile: bool, seconds: float = 3.0, huge: float = 1e300
+) -> list[tuple[Any, ...]]:
     """A road at 1 kHz (jittered, with gaps) and accelerometers at 100–500 Hz, merged by stamp.
 
     The accelerations follow a stiff soil loosely (enough for the filter to
     converge and the change detector to run); ``hostile`` adds huge,
-    non-finite and out-of-order samples, a long IMU gap and a wheel
-    accelerometer that goes missing.
+    non-finite and out-of-order samples (``huge``: the huge ones), a long
+    IMU gap and a wheel accelerometer that goes missing.
     """
     rng = np.random.default_rng(seed)
     events: list[tuple[Any, ...]] = []
@@ -510,7 +499,7 @@ def _stream(seed: int, vehicle: str, *, hostile: bool, seconds: float = 3.0) -> 
             continue  # profile gap: predict-only steps
         h = 0.01 * math.sin(7.0 * t) + 0.003 * math.sin(41.0 * t) + 1e-4 * rng.standard_normal()
         if hostile and rng.random() < 0.002:
-            h = float(rng.choice([math.nan, 1e300, -math.inf]))
+            h = float(rng.choice([math.nan, huge, -math.inf]))
         events.append((t, 0, ("p", t, speed * t, h)))
     acc_period = 0.002 if vehicle == "lrv" else 0.01
     ta = 0.0
@@ -527,9 +516,9 @@ def _stream(seed: int, vehicle: str, *, hostile: bool, seconds: float = 3.0) -> 
             if r < 0.02:
                 fw = None
             elif r < 0.03:
-                fb = float(rng.choice([math.nan, 1e300, -1e300, math.inf]))
+                fb = float(rng.choice([math.nan, huge, -huge, math.inf]))
             elif r < 0.035:
-                fw = 1e300
+                fw = huge
             if count % 97 == 50:
                 fb = math.nan
         stamp = ta - (0.02 if hostile and rng.random() < 0.01 else 0.0)  # out of order
@@ -552,17 +541,34 @@ _STREAM_CONFIGS = [
 @pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
 @pytest.mark.parametrize("hostile", [False, True])
 @pytest.mark.parametrize("case", range(len(_STREAM_CONFIGS)))
-def test_estimator_fast_step_equals_the_reference_filter(case: int, hostile: bool) -> None:
-    """The default SCKF's unchecked step gives, call by call, what the SCKF as first written gives."""
+def test_estimator_compiled_step_equals_the_reference_filter(case: int, hostile: bool) -> None:
+    """The default SCKF's compiled step gives, call by call, what the SCKF as first written gives, to rounding.
+
+    Every flag, count, class and gate decision is equal. The floats differ
+    by the rounding of another QR and other sums (``estimators.soil_stiffness_sckf``),
+    which the filter's recursion amplifies as it amplifies any rounding: the
+    bound is 10× the spread of the reference against itself with its
+    initial covariance moved by one ulp, and at least 1e-8 relative. (On the
+    plain streams both are ~1e-9; on the hostile ones, after samples of 1e6,
+    up to 1e-2 for both.) The hostile samples are 1e6 here, not 1e300: a
+    road sample of 1e300 feeds a ḣ of 1e301 to the LRV's predicted
+    acceleration, whose cubature spread is then the rounding of the mean
+    (1e286), so whether the update passes or overflows the NIS depends on
+    the last bit. The estimator comes out of such steps either way
+    (``test_robustness_fuzz.py`` holds it to finite estimates).
+    """
     vehicle, extra = _STREAM_CONFIGS[case]
     cfg = SoilStiffnessEstimatorConfig(vehicle=vehicle, **extra)
-    events = _stream(RNG_SEED + 40 + case, vehicle, hostile=hostile)
+    events = _stream(RNG_SEED + 40 + case, vehicle, hostile=hostile, huge=1e6)
     fast = SoilStiffnessEstimator(cfg)
     assert fast._sckf is fast.filter
     ref = SoilStiffnessEstimator(cfg, filter_impl=_ReferenceSCKF(gate_threshold=None))
     assert ref._sckf is None
-    got, want = _run_stream(fast, events), _run_stream(ref, events)
-    assert got == want
+    nudged = SoilStiffnessEstimator(cfg, filter_impl=_ReferenceSCKF(gate_threshold=None))
+    nudged._p0 = nudged._p0 * (1.0 + 2.0**-50)
+    want = _run_stream(ref, events)
+    own_spread = _stream_spread(_run_stream(nudged, events), want)
+    assert _stream_spread(_run_stream(fast, events), want) <= max(1e-8, 10.0 * own_spread)
     c = fast.counters
     assert c.updates_accepted > 5
     if "gate_threshold" in extra:

@@ -176,6 +176,7 @@ from typing import Any, Literal
 import numpy as np
 from scipy.linalg.lapack import dpotrf as _dpotrf
 
+from terrain_estimation.estimators.soil_stiffness_sckf import STATUS_OK, model_operands, sckf_step, warm_up
 from terrain_estimation.filters.base import Array, SqrtGaussianState, UpdateInfo
 from terrain_estimation.filters.faults import DivergenceConfig, DivergenceMonitor
 from terrain_estimation.models.quarter_car import (
@@ -184,6 +185,8 @@ from terrain_estimation.models.quarter_car import (
     QuarterCarModel,
     QuarterCarParams,
     StepInput,
+    hdot_at_end,
+    substep_inputs,
 )
 from terrain_estimation.models.soil import (
     SOIL_TABLE,
@@ -606,6 +609,7 @@ _EPS_T = 1e-9  # stamp comparison tolerance (s): stamps are float conversions
 #: ḣ fit (feed-through): polynomial degree (lowered to fit fewer samples),
 #: longest time window, and the span over which the speed is measured (s).
 _HDOT_DEGREE = 5
+_NO_MEASUREMENT = np.zeros(1)  # the compiled step's z of a predict-only step (not read)
 _HDOT_MAX_WINDOW_S = 0.1
 _SPEED_SPAN_S = 0.05
 
@@ -639,10 +643,15 @@ class SoilStiffnessEstimator:
             self.model = LRVModel(cfg.lrv)
             self._body_only = None
         self.filter = filter_impl if filter_impl is not None else make_filter(cfg.filter)
-        # The default SCKF runs through its unchecked entries (_sckf_step); any
-        # other filter, a filter_impl, or a filter swapped in later through the
-        # public predict/update (_filter_step).
-        self._sckf: Any = self.filter if filter_impl is None and cfg.filter == "sckf" else None
+        # The default SCKF runs as one compiled step (_sckf_step, with the
+        # model's constants in _operands; not for the "expm" discretisation);
+        # any other filter, a filter_impl, or a filter swapped in later through
+        # the public predict/update (_filter_step).
+        self._operands = model_operands(self.model)
+        default_sckf = filter_impl is None and cfg.filter == "sckf" and self._operands is not None
+        self._sckf: Any = self.filter if default_sckf else None
+        if default_sckf:
+            warm_up()
         n = self.model.state_dim
         k_series = self.model.k_series
         k_tot0 = cfg.k_tot0 if cfg.k_tot0 is not None else 0.5 * k_series
@@ -1276,38 +1285,63 @@ class SoilStiffnessEstimator:
         zw: float | None,
         sigma_eps: Array,
     ) -> tuple[SqrtGaussianState, SqrtGaussianState, float, bool, int]:
-        """:meth:`_filter_step` with the default SCKF through its unchecked entries, bit for bit.
+        """:meth:`_filter_step` for the default SCKF, in one compiled call (:func:`.soil_stiffness_sckf.sckf_step`).
 
-        The estimator guarantees what the SCKF's public methods check (a
-        float ``(n,)`` mean and ``(n, n)`` factor it produced itself, a finite
-        measurement of the model's size, the model's noise factors), so it
-        calls ``_predict_fast`` / ``_update_fast``: no shape checks, no
-        :class:`UpdateInfo`, and one discretisation shared by ``f`` and the
-        process noise (``_propagate``). The model's outputs are still checked
-        for finite values (ValueError, as the public methods raise).
+        The same filter and model as the SCKF's public ``predict``/``update``
+        with the model's methods, to rounding (about 1e-13 relative): the
+        numpy form of a 5-state step is mostly per-call overhead. A failed
+        step (non-finite points, ``R_eff`` not positive definite) raises
+        ValueError, as the public methods raise there.
         """
         cfg = self.config
-        filt = self._sckf
-        assert filt is not None
-        x_pred, S_pred = filt._predict_fast(prev_state.x, prev_state.S, self.model._propagate, u, dt)  # noqa: N806
+        ops = self._operands
+        assert ops is not None and self._sckf is not None
+        gate = self._sckf.gate_threshold
+        update = max_gap <= cfg.profile_max_gap_s
+        if update:
+            _, z = self._measurement(zb, zw)
+        else:
+            z = _NO_MEASUREMENT
+        status, x_pred, S_pred, nis, accepted, x_post, S_post = sckf_step(
+            np.ascontiguousarray(prev_state.x, dtype=float),
+            np.ascontiguousarray(prev_state.S, dtype=float),
+            substep_inputs(u),
+            dt,
+            ops.a0,
+            ops.e,
+            ops.b,
+            ops.g,
+            ops.sigma_q,
+            self.model._stiffness_noise_sqrt(dt),
+            ops.logistic,
+            ops.k_lo,
+            ops.k_hi,
+            ops.k_series,
+            ops.k_floor,
+            update,
+            z,
+            ops.c0,
+            ops.ce,
+            ops.d,
+            hdot_at_end(u) if self._feedthrough else 0.0,
+            ops.sqrt_r,
+            sigma_eps,
+            cfg.profile_noise_std > 0.0,
+            math.inf if gate is None else float(gate),
+        )
+        if status != STATUS_OK:
+            raise ValueError("SCKF step failed: non-finite points or a measurement noise that is not positive definite")
         prior = SqrtGaussianState(x=x_pred, S=S_pred)
-        if max_gap > cfg.profile_max_gap_s:
+        if not update:
             self._c["predict_only"] += 1
             return prior, prior, 0.0, False, 0
-        model, z = self._measurement(zb, zw)
-        if cfg.profile_noise_std > 0.0:
-            rs = self._measurement_noise_sqrt(x_pred, z.size, sigma_eps)
-        else:
-            rs = np.asarray(model.measurement_noise_sqrt(), dtype=float)
-        nis, upd = filt._update_fast(x_pred, S_pred, z, model.h, u, rs)
-        accepted = upd is not None
         if accepted and cfg.gate_threshold is not None and not (nis <= cfg.gate_threshold):
             accepted = False
-        if not accepted or upd is None:
+        if not accepted:
             self._c["gated"] += 1
             return prior, prior, nis, False, z.size
         self._c["updates_accepted"] += 1
-        return prior, SqrtGaussianState(x=upd[0], S=upd[1]), nis, True, z.size
+        return prior, SqrtGaussianState(x=x_post, S=S_post), nis, True, z.size
 
     def _watch(
         self,

@@ -116,34 +116,6 @@ class SquareRootCubatureKalmanFilter:
         x_pred, S_pred = _time_update(ps.Wm, Xs, L)
         return SqrtGaussianState(x=x_pred, S=S_pred)
 
-    def _predict_fast(
-        self,
-        x: Array,
-        S: Array,
-        propagate: Callable[[Array, Array, Any, float], tuple[Array, Array]],
-        u: Any,
-        dt: float,
-    ) -> tuple[Array, Array]:
-        """:meth:`predict` for a caller that guarantees the shapes: ``(x̄, S̄)``, bit for bit.
-
-        For the soil-stiffness estimator's step (its model, its state), where
-        the shape checks, the state object and a second discretisation cost
-        more than the arithmetic. ``propagate(X, x, u, dt)`` returns the model's
-        ``(f(X, u, dt), process_noise_sqrt(x, u, dt))`` (e.g.
-        ``QuarterCarModel._propagate``, which shares one discretisation
-        between them); only its points are checked (finite, as ``predict``
-        does: a ValueError otherwise).
-
-        Args:
-            x: float ``(n,)``; S: float ``(n, n)`` lower-triangular factor.
-        """
-        ps = cubature_points(x.shape[0])
-        X = x + ps.unit @ S.T  # (14)
-        Xs, L = propagate(X, x, u, dt)  # (15) and √Q_k
-        if not np.isfinite(Xs).all():
-            raise ValueError("model.f returned non-finite values")
-        return _time_update(ps.Wm, Xs, L)
-
     def update(
         self,
         state: SqrtGaussianState,
@@ -194,23 +166,6 @@ class SquareRootCubatureKalmanFilter:
             return state, info
         info = UpdateInfo(innovation=nu, innovation_cov=S_z @ S_z.T, nis=nis, accepted=True, extras=info_extras)
         return SqrtGaussianState(x=post[0], S=post[1]), info
-
-    def _update_fast(
-        self, x: Array, S: Array, z: Array, h: Callable[[Array, Any], Array], u: Any, Rs: Array
-    ) -> tuple[float, tuple[Array, Array] | None]:
-        """:meth:`update` for a caller that guarantees the shapes and a finite ``z``, bit for bit.
-
-        Returns ``(nis, (x̂, S) or None)``: None when the gate rejects (the
-        caller keeps its prior). No :class:`UpdateInfo` (its ``S_z S_zᵀ`` is
-        formed for reporting only). ``h``'s points are checked as
-        :meth:`update` checks them.
-
-        Args:
-            x: float ``(n,)``; S: float ``(n, n)``; z: float ``(p,)``, finite;
-            h: the model's ``h``; Rs: ``√R`` ``(p, r)``.
-        """
-        _, _, nis, post = self._update_core(x, S, z, h, u, Rs, z.shape[0])
-        return nis, post
 
     def _update_core(
         self, x: Array, S: Array, zv: Array, h: Callable[[Array, Any], Array], u: Any, Rs: Array, p: int

@@ -588,8 +588,6 @@ class _BilinearKtotModel:
         self._d = self._b[self._rows]
         self._feedthrough = bool(np.any(self._d))
         self._noise_cache: tuple[float, float, Array] | None = None
-        # _propagate's batch operands (A0 and the step lengths at full shape), by (m, δ, dt).
-        self._batch_operands: dict[tuple[int, float, float], tuple[Array, Array]] = {}
 
     # -- protocol -----------------------------------------------------------
     @property
@@ -769,62 +767,6 @@ class _BilinearKtotModel:
         y = _run_substeps(pts, phi, gb, us)
         return y[0] if single else y
 
-    def _propagate(self, pts: Array, x_mean: Array, u: Any, dt: float) -> tuple[Array, Array]:
-        """``(f(pts, u, dt), process_noise_sqrt(x_mean, u, dt))`` in one pass (the SCKF's fast path).
-
-        Bit for bit the two public calls (the same operations on every
-        element, and ``f``'s sub-step loop itself): on a miss of the noise
-        cache the ``"taylor4"`` series of the ``m`` points (over the sub-step
-        δ) and of the mean (over the whole step ``dt``) run as one ``(m + 1)``
-        batch, each matrix with its own step length, which saves the second
-        discretisation's dozen numpy calls. Any other case calls the two
-        methods.
-
-        Args:
-            pts: points ``(m, n)``, float (not modified).
-            x_mean: the mean ``(n,)`` the process noise is evaluated at.
-            u, dt: as for :meth:`f`.
-
-        Returns:
-            ``(Y, L)``: propagated points ``(m, n)`` and ``√Q_k`` ``(n, n)``
-            (the noise cache's own array, read-only, on a cache miss).
-        """
-        dt = float(dt)
-        k_c = self._mean_ktot(x_mean)
-        cache = self._noise_cache
-        if self._method != "taylor4" or (cache is not None and cache[0] == dt and cache[1] == k_c):
-            return self.f(pts, u, dt), self.process_noise_sqrt(x_mean, u, dt)
-        us = substep_inputs(u)
-        delta = dt / us.size
-        m = pts.shape[0]
-        n = self._a0.shape[0]
-        k = np.empty(m + 1)
-        k[:m] = self.ktot_of(pts[:, -1])
-        k[m] = k_c
-        key = (m, delta, dt)
-        operands = self._batch_operands.get(key)
-        if operands is None:
-            if len(self._batch_operands) >= 16:
-                self._batch_operands.clear()
-            a0_full = np.broadcast_to(self._a0, (m + 1, n, n)).copy()
-            steps_full = np.full((m + 1, n, n), delta)
-            steps_full[m] = dt
-            a0_full.setflags(write=False)
-            steps_full.setflags(write=False)
-            operands = self._batch_operands[key] = (a0_full, steps_full)
-        a0, steps = operands
-        # (A0 + k E) δ_i as A(x) and discretise form it (k·E then A0 + ·, then · δ),
-        # against full-shape operands: ufuncs on equal shapes skip broadcasting.
-        a = (k[:, None] * self._e.ravel()).reshape(m + 1, n, n)
-        np.add(a, a0, out=a)
-        np.multiply(a, steps, out=a)
-        pair = _taylor4_pair(a)
-        gam = np.multiply(pair[1], steps)
-        lq = self._noise_factor(gam[m], dt)
-        lq.setflags(write=False)  # the cache's own array is handed out
-        self._noise_cache = (dt, k_c, lq)
-        return _run_substeps(pts, pair[0, :m], gam[:m] @ self._b, us), lq
-
     def h(self, x: Array, u: Any = None) -> Array:
         """Predicted accelerations ``z = C(x) x + D ḣ`` (P-9, A.4) in m/s².
 
@@ -902,14 +844,17 @@ class _BilinearKtotModel:
         """``√Q_k`` of :meth:`process_noise_sqrt` from ``Γ_k(dt)`` at the mean k_tot."""
         lq = math.sqrt(dt) * (gam @ self._g) * self._sigma_q
         lq[:, -1] = 0.0
+        lq[-1, -1] = self._stiffness_noise_sqrt(dt)
+        return lq
+
+    def _stiffness_noise_sqrt(self, dt: float) -> float:
+        """The stiffness random walk's entry of ``√Q_k`` over ``dt`` (its last diagonal entry)."""
         # math.sqrt: IEEE square roots are correctly rounded, numpy's as libm's.
         if self._stiffness_state == "log_k_s":
-            lq[-1, -1] = math.sqrt(self._q_log_ks_per_step * dt / self._ktot_step_dt)
-        elif self._noise_form == "per_step":
-            lq[-1, -1] = math.sqrt(self._q_ktot_per_step * dt / self._ktot_step_dt)
-        else:
-            lq[-1, -1] = math.sqrt(dt) * dt * self._sigma_q[-1]
-        return lq
+            return math.sqrt(self._q_log_ks_per_step * dt / self._ktot_step_dt)
+        if self._noise_form == "per_step":
+            return math.sqrt(self._q_ktot_per_step * dt / self._ktot_step_dt)
+        return float(math.sqrt(dt) * dt * self._sigma_q[-1])
 
     # -- Jacobians (EKF, A.6) -------------------------------------------------
     def transition_jacobian(self, x: Array, u: Any, dt: float) -> Array:
