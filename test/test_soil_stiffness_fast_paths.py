@@ -4,15 +4,17 @@ The per-step cost of the quarter-car / LRV estimator was cut by calling
 LAPACK directly (``tria``, the ``R_eff`` Cholesky), running the two Taylor
 series of ``discretise`` as one stacked recursion, converting only the
 profile samples a step reads, and computing the median spacing on the list;
-then by the SCKF's unchecked entries for the estimator (``_predict_fast``,
-``_update_fast``), one discretisation shared by ``f`` and the process noise
-(``_propagate``), the no-fit road
-weights and the gap search read off the buffer list, the ḣ-window and
-waiting-step caches and the adapter's pairing early-out.
-Each of those is meant to reproduce the former computation bit for bit; these
-tests hold them to it (``np.array_equal`` or exact equality, not a
-tolerance) against the straightforward forms they replaced, written out here
-(the SCKF as first written included).
+then by the no-fit road weights and the gap search read off the buffer
+list, the ḣ-window and waiting-step caches and the adapter's pairing
+early-out. Each of those is meant to reproduce the former computation bit
+for bit; these tests hold them to it (``np.array_equal`` or exact equality,
+not a tolerance) against the straightforward forms they replaced, written
+out here (the SCKF as first written included).
+
+The exception is the estimator's SCKF step itself, since compiled
+(``estimators.soil_stiffness_sckf``, its own tests in
+``test_soil_stiffness_sckf.py``): the stream comparison with the SCKF as
+first written holds it to rounding.
 """
 
 from __future__ import annotations

@@ -609,9 +609,10 @@ _EPS_T = 1e-9  # stamp comparison tolerance (s): stamps are float conversions
 #: ḣ fit (feed-through): polynomial degree (lowered to fit fewer samples),
 #: longest time window, and the span over which the speed is measured (s).
 _HDOT_DEGREE = 5
-_NO_MEASUREMENT = np.zeros(1)  # the compiled step's z of a predict-only step (not read)
 _HDOT_MAX_WINDOW_S = 0.1
 _SPEED_SPAN_S = 0.05
+#: The compiled step's ``z`` of a predict-only step (not read).
+_NO_MEASUREMENT = np.zeros(1)
 
 
 class SoilStiffnessEstimator:
