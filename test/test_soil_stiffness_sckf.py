@@ -10,6 +10,8 @@ the small products out, so the comparison is to rounding, not bit for bit.
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 from typing import Any
 
 import numpy as np
@@ -267,3 +269,17 @@ def test_one_compiled_signature_serves_every_step(vehicle: str) -> None:
     c = est.counters
     assert c.updates_accepted > 20 and c.predict_only > 0 and c.restarts > 0
     assert len(sckf_step.signatures) == 1
+
+
+def test_the_estimator_compiles_its_step_when_it_is_built() -> None:
+    """Built, before any sample: the step is compiled (or loaded from numba's cache), so a node's first
+    filter step does not wait for the compiler. In a fresh process, where nothing else compiled it."""
+    code = (
+        "from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimator\n"
+        "from terrain_estimation.estimators.soil_stiffness_sckf import sckf_step\n"
+        "assert not sckf_step.signatures\n"
+        "SoilStiffnessEstimator()\n"
+        "print(len(sckf_step.signatures))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.split() == ["1"]
