@@ -10,6 +10,7 @@ the small products out, so the comparison is to rounding, not bit for bit.
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 from typing import Any
@@ -283,3 +284,26 @@ def test_the_estimator_compiles_its_step_when_it_is_built() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
     assert out.stdout.split() == ["1"]
+
+
+def test_without_a_place_for_numbas_cache_the_step_still_compiles() -> None:
+    """A read-only install and home (no cache locator): import warns once and the estimator still runs."""
+    code = (
+        "import warnings\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    warnings.simplefilter('always')\n"
+        "    from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimator\n"
+        "from terrain_estimation.estimators.soil_stiffness_sckf import sckf_step\n"
+        "notes = [str(w.message) for w in caught if 'NUMBA_CACHE_DIR' in str(w.message)]\n"
+        "est = SoilStiffnessEstimator()\n"
+        "for i in range(1, 60):\n"
+        "    est.add_profile_sample(i * 1e-3, i * 1e-2, 0.0)\n"
+        "est.add_accelerations(0.02, 9.8, 9.8)\n"
+        "est.add_accelerations(0.04, 9.8, 9.8)\n"
+        "print(len(notes), len(sckf_step.signatures), est.counters.steps)\n"
+    )
+    env = dict(os.environ, NUMBA_CACHE_LOCATOR_CLASSES="ZipCacheLocator")  # finds no place for a .py module
+    env.pop("NUMBA_CACHE_DIR", None)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env, check=True)
+    notes, signatures, steps = (int(v) for v in out.stdout.split())
+    assert notes == 1 and signatures == 1 and steps >= 1
