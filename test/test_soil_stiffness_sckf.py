@@ -30,6 +30,7 @@ from terrain_estimation.estimators.soil_stiffness_sckf import (
     _solve_lower,
     _tria,
     model_operands,
+    run_step,
     sckf_step,
 )
 from terrain_estimation.filters.sckf import SquareRootCubatureKalmanFilter
@@ -40,8 +41,6 @@ from terrain_estimation.models.quarter_car import (
     QuarterCarModel,
     QuarterCarParams,
     StepInput,
-    hdot_at_end,
-    substep_inputs,
 )
 
 RNG_SEED = 20261126 + 500
@@ -120,34 +119,7 @@ def _compiled_step(
 ) -> tuple[Any, ...]:
     ops = model_operands(model)
     assert ops is not None
-    feedthrough = bool(np.any(ops.d))
-    return sckf_step(
-        state.x,
-        state.S,
-        substep_inputs(u),
-        dt,
-        ops.a0,
-        ops.e,
-        ops.b,
-        ops.g,
-        ops.sigma_q,
-        model._stiffness_noise_sqrt(dt),
-        ops.logistic,
-        ops.k_lo,
-        ops.k_hi,
-        ops.k_series,
-        ops.k_floor,
-        z is not None,
-        np.zeros(1) if z is None else z,
-        ops.c0,
-        ops.ce,
-        ops.d,
-        hdot_at_end(u) if feedthrough else 0.0,
-        ops.sqrt_r,
-        sigma_eps,
-        profile_noise,
-        math.inf if gate is None else gate,
-    )
+    return run_step(ops, model, state.x, state.S, u, dt, z, sigma_eps, profile_noise, gate)
 
 
 @pytest.mark.parametrize("index", range(5))

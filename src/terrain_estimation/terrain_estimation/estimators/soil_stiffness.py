@@ -176,7 +176,7 @@ from typing import Any, Literal
 import numpy as np
 from scipy.linalg.lapack import dpotrf as _dpotrf
 
-from terrain_estimation.estimators.soil_stiffness_sckf import STATUS_OK, model_operands, sckf_step, warm_up
+from terrain_estimation.estimators.soil_stiffness_sckf import STATUS_OK, model_operands, run_step, warm_up
 from terrain_estimation.filters.base import Array, SqrtGaussianState, UpdateInfo
 from terrain_estimation.filters.faults import DivergenceConfig, DivergenceMonitor
 from terrain_estimation.models.quarter_car import (
@@ -185,8 +185,6 @@ from terrain_estimation.models.quarter_car import (
     QuarterCarModel,
     QuarterCarParams,
     StepInput,
-    hdot_at_end,
-    substep_inputs,
 )
 from terrain_estimation.models.soil import (
     SOIL_TABLE,
@@ -611,8 +609,6 @@ _EPS_T = 1e-9  # stamp comparison tolerance (s): stamps are float conversions
 _HDOT_DEGREE = 5
 _HDOT_MAX_WINDOW_S = 0.1
 _SPEED_SPAN_S = 0.05
-#: The compiled step's ``z`` of a predict-only step (not read).
-_NO_MEASUREMENT = np.zeros(1)
 
 
 class SoilStiffnessEstimator:
@@ -1297,43 +1293,24 @@ class SoilStiffnessEstimator:
         cfg = self.config
         ops = self._operands
         assert ops is not None and self._sckf is not None
-        gate = self._sckf.gate_threshold
         update = max_gap <= cfg.profile_max_gap_s
-        if update:
-            _, z = self._measurement(zb, zw)
-        else:
-            z = _NO_MEASUREMENT
-        status, x_pred, S_pred, nis, accepted, x_post, S_post = sckf_step(
-            np.ascontiguousarray(prev_state.x, dtype=float),
-            np.ascontiguousarray(prev_state.S, dtype=float),
-            substep_inputs(u),
+        z = self._measurement(zb, zw)[1] if update else None
+        status, x_pred, S_pred, nis, accepted, x_post, S_post = run_step(
+            ops,
+            self.model,
+            prev_state.x,
+            prev_state.S,
+            u,
             dt,
-            ops.a0,
-            ops.e,
-            ops.b,
-            ops.g,
-            ops.sigma_q,
-            self.model._stiffness_noise_sqrt(dt),
-            ops.logistic,
-            ops.k_lo,
-            ops.k_hi,
-            ops.k_series,
-            ops.k_floor,
-            update,
             z,
-            ops.c0,
-            ops.ce,
-            ops.d,
-            hdot_at_end(u) if self._feedthrough else 0.0,
-            ops.sqrt_r,
             sigma_eps,
             cfg.profile_noise_std > 0.0,
-            math.inf if gate is None else float(gate),
+            self._sckf.gate_threshold,
         )
         if status != STATUS_OK:
             raise ValueError("SCKF step failed: non-finite points or a measurement noise that is not positive definite")
         prior = SqrtGaussianState(x=x_pred, S=S_pred)
-        if not update:
+        if z is None:
             self._c["predict_only"] += 1
             return prior, prior, 0.0, False, 0
         if accepted and cfg.gate_threshold is not None and not (nis <= cfg.gate_threshold):

@@ -36,7 +36,9 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit
 
-__all__ = ["STATUS_OK", "STATUS_FAILED", "ModelOperands", "model_operands", "sckf_step", "warm_up"]
+from terrain_estimation.models.quarter_car import hdot_at_end, substep_inputs
+
+__all__ = ["STATUS_OK", "STATUS_FAILED", "ModelOperands", "model_operands", "run_step", "sckf_step", "warm_up"]
 
 #: :func:`sckf_step` ran (its posterior may still be rejected by the gate).
 STATUS_OK = 0
@@ -90,6 +92,7 @@ class ModelOperands(NamedTuple):
     ce: np.ndarray
     d: np.ndarray
     sqrt_r: np.ndarray
+    feedthrough: bool
 
 
 def model_operands(model: Any) -> ModelOperands | None:
@@ -121,6 +124,65 @@ def model_operands(model: Any) -> ModelOperands | None:
         ce=arr(model._ce),
         d=arr(model._d),
         sqrt_r=arr(model._sqrt_r),
+        feedthrough=bool(np.any(model._d)),
+    )
+
+
+#: ``z`` of a predict-only step (not read).
+_NO_MEASUREMENT = np.zeros(1)
+
+
+def run_step(
+    ops: ModelOperands,
+    model: Any,
+    x: Any,
+    S: Any,
+    u: Any,
+    dt: float,
+    z: np.ndarray | None,
+    sigma_eps: np.ndarray,
+    profile_noise: bool,
+    gate: float | None,
+) -> tuple[int, np.ndarray, np.ndarray, float, bool, np.ndarray, np.ndarray]:
+    """:func:`sckf_step` for ``model`` (its :func:`model_operands` ``ops``) and a step's input as the model takes it.
+
+    Args:
+        x, S: the previous posterior (mean, lower factor).
+        u: the step's sub-step ḣ ``(N,)`` or a ``StepInput`` (ḣ at the
+            measurement time for a feed-through).
+        z: the measured accelerations ``(p,)``; None for a predict-only step.
+        sigma_eps, profile_noise: ``Σ_ε`` and whether it enters ``R``.
+        gate: the SCKF's NIS gate (None: none).
+
+    Returns:
+        :func:`sckf_step`'s tuple.
+    """
+    return sckf_step(
+        np.ascontiguousarray(x, dtype=float),
+        np.ascontiguousarray(S, dtype=float),
+        substep_inputs(u),
+        dt,
+        ops.a0,
+        ops.e,
+        ops.b,
+        ops.g,
+        ops.sigma_q,
+        model._stiffness_noise_sqrt(dt),
+        ops.logistic,
+        ops.k_lo,
+        ops.k_hi,
+        ops.k_series,
+        ops.k_floor,
+        z is not None,
+        _NO_MEASUREMENT if z is None else z,
+        ops.c0,
+        ops.ce,
+        ops.d,
+        hdot_at_end(u) if ops.feedthrough else 0.0,
+        ops.sqrt_r,
+        sigma_eps,
+        profile_noise,
+        math.inf if gate is None else float(gate),
     )
 
 
