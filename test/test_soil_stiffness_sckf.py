@@ -259,12 +259,15 @@ def test_the_estimator_compiles_its_step_when_it_is_built() -> None:
 
 
 def test_without_a_place_for_numbas_cache_the_step_still_compiles() -> None:
-    """A read-only install and home (no cache locator): import warns once and the estimator still runs."""
+    """A read-only install and home (no cache locator): the imports of every numba user warn once in all,
+    and the estimator still runs (``terrain_estimation.jit``)."""
     code = (
         "import warnings\n"
         "with warnings.catch_warnings(record=True) as caught:\n"
         "    warnings.simplefilter('always')\n"
         "    from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimator\n"
+        "    import terrain_estimation.sim2real.quarter_car, terrain_estimation.sim2real.single_wheel\n"
+        "    import terrain_estimation.sim2real.skid_steer\n"
         "from terrain_estimation.estimators.soil_stiffness_sckf import sckf_step\n"
         "notes = [str(w.message) for w in caught if 'NUMBA_CACHE_DIR' in str(w.message)]\n"
         "est = SoilStiffnessEstimator()\n"

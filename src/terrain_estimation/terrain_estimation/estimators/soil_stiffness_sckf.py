@@ -29,13 +29,11 @@ loops, so results agree to rounding (about 1e-13 relative), not bit for bit
 from __future__ import annotations
 
 import math
-import warnings
-from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
-from numba import njit
 
+from terrain_estimation.jit import compiled
 from terrain_estimation.models.quarter_car import hdot_at_end, substep_inputs
 
 __all__ = ["STATUS_OK", "STATUS_FAILED", "ModelOperands", "model_operands", "run_step", "sckf_step", "warm_up"]
@@ -46,33 +44,6 @@ STATUS_OK = 0
 #: positive definite: the step failed (the public SCKF raises ValueError /
 #: LinAlgError there).
 STATUS_FAILED = 1
-
-
-def _compiled(fn: Callable[..., Any]) -> Any:
-    """``njit(cache=True)``; without numba's on-disk cache where it finds no place to write one.
-
-    Numba keeps its cache beside the module, else under the user's cache
-    directory or ``NUMBA_CACHE_DIR``; with none of them writable (a read-only
-    install and home) ``cache=True`` fails at import. The functions are then
-    compiled in every process that builds an estimator (about 7 s), with a
-    warning saying how to avoid it.
-    """
-    global _uncached
-    if not _uncached:
-        try:
-            return njit(cache=True)(fn)
-        except RuntimeError as exc:
-            _uncached = True
-            warnings.warn(
-                f"{exc}; the soil-stiffness filter step is compiled at every start (about 7 s): "
-                "set NUMBA_CACHE_DIR to a writable directory to keep it",
-                RuntimeWarning,
-                stacklevel=2,
-            )
-    return njit(fn)
-
-
-_uncached = False  # numba found no place for its cache (see _compiled)
 
 
 class ModelOperands(NamedTuple):
@@ -186,7 +157,7 @@ def run_step(
     )
 
 
-@_compiled
+@compiled
 def _ktot(v: float, logistic: bool, lo: float, hi: float, k_series: float) -> float:  # pragma: no cover
     """k_tot the dynamics use for a last-state value (``ktot_of``): clamp, or logistic of the clipped value."""
     # Written as comparisons so that a NaN stays NaN, as min(max(v, lo), hi) keeps it.
@@ -200,7 +171,7 @@ def _ktot(v: float, logistic: bool, lo: float, hi: float, k_series: float) -> fl
     return c
 
 
-@_compiled
+@compiled
 def _matmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover
     """``out = a @ b`` for small square matrices (out must not alias a or b)."""
     n = a.shape[0]
@@ -212,7 +183,7 @@ def _matmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:  # pragma: n
             out[i, j] = s
 
 
-@_compiled
+@compiled
 def _taylor4(ad: np.ndarray, phi: np.ndarray, gam_over_delta: np.ndarray) -> None:  # pragma: no cover
     """``Φ`` and ``Γ/δ`` of the ``"taylor4"`` series from ``ad = A δ`` (Horner form, as ``_taylor4_pair``).
 
@@ -241,7 +212,7 @@ def _taylor4(ad: np.ndarray, phi: np.ndarray, gam_over_delta: np.ndarray) -> Non
     gam_over_delta[:, :] = q
 
 
-@_compiled
+@compiled
 def _tria(rows: np.ndarray) -> np.ndarray:  # pragma: no cover
     """``tria`` of the compound matrix whose transpose is ``rows`` ``(k, n)``: lower ``S`` with ``S Sᵀ = rowsᵀ rows``.
 
@@ -293,7 +264,7 @@ def _tria(rows: np.ndarray) -> np.ndarray:  # pragma: no cover
     return S
 
 
-@_compiled
+@compiled
 def _solve_lower(L: np.ndarray, B: np.ndarray, transpose: bool) -> np.ndarray:  # pragma: no cover
     """``L X = B`` (or ``Lᵀ X = B``) by substitution, ``L`` lower-triangular ``(p, p)``, ``B`` ``(p, m)``.
 
@@ -318,7 +289,7 @@ def _solve_lower(L: np.ndarray, B: np.ndarray, transpose: bool) -> np.ndarray:  
     return X
 
 
-@_compiled
+@compiled
 def _cholesky_lower(A: np.ndarray) -> tuple[np.ndarray, bool]:  # pragma: no cover
     """Lower Cholesky factor of a symmetric ``A`` (its lower triangle read); ``ok`` False if not positive definite."""
     p = A.shape[0]
@@ -338,7 +309,7 @@ def _cholesky_lower(A: np.ndarray) -> tuple[np.ndarray, bool]:  # pragma: no cov
     return L, True
 
 
-@_compiled
+@compiled
 def _all_finite(a: np.ndarray) -> bool:  # pragma: no cover
     for v in a.ravel():
         if not math.isfinite(v):
@@ -346,7 +317,7 @@ def _all_finite(a: np.ndarray) -> bool:  # pragma: no cover
     return True
 
 
-@_compiled
+@compiled
 def sckf_step(
     x: np.ndarray,
     S: np.ndarray,

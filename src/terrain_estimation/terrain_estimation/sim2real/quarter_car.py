@@ -58,10 +58,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 from scipy import signal, stats
 
+from terrain_estimation.jit import compiled
 from terrain_estimation.sim2real.model import Candidate, Channel, FitParameter, candidates_from_catalogue
 from terrain_estimation.sim2real.where import Sim2RealError, _odd, _read, _savgol
 from terrain_estimation.tools.estimate import topic_name
@@ -140,7 +140,7 @@ def _wiener_road(raw: FloatArray, dt: float, sigma_h: float) -> tuple[FloatArray
     return np.asarray(f, dtype=float), np.asarray(gain, dtype=float), np.full(f.size, float(f[1] - f[0]))
 
 
-@njit(cache=True)
+@compiled
 def _chain_force(deflection: float, series: float, k_s: float, load: float, n: float) -> float:  # pragma: no cover
     """Dynamic force of a spring ``series`` in series with the Bekker-type soil (see the plant)."""
     ratio = k_s / series
@@ -188,7 +188,7 @@ def _chain_force(deflection: float, series: float, k_s: float, load: float, n: f
     return load * (x - 1.0)
 
 
-@njit(cache=True)
+@compiled
 def _forces(
     y1: float,
     v1: float,
@@ -230,7 +230,7 @@ def _forces(
     return (ground + sky) / m1, 0.0
 
 
-@njit(cache=True)
+@compiled
 def _simulate(
     h: FloatArray, hd: FloatArray, dt: float, p: FloatArray
 ) -> tuple[FloatArray, FloatArray]:  # pragma: no cover

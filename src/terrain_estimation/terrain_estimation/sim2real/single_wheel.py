@@ -134,9 +134,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
+from terrain_estimation.jit import compiled
 from terrain_estimation.sim2real.model import Candidate, Channel, FitParameter
 from terrain_estimation.sim2real.where import Sim2RealError
 
@@ -230,7 +230,7 @@ def _simpson_weights(points: int) -> FloatArray:
 _WEIGHTS = _simpson_weights(_SIMPSON_POINTS)
 
 
-@njit(cache=True)
+@compiled
 def _rim_row(
     theta0: float, slip: float, n: float, soil: FloatArray, weights: FloatArray
 ) -> tuple[float, float, float]:  # pragma: no cover - compiled (tested through steady_state)
@@ -289,7 +289,7 @@ def _rim_row(
     return br * load, br * dp, br * r * torque
 
 
-@njit(cache=True)
+@compiled
 def _contact_angle_row(
     load: float, slip: float, n: float, soil: FloatArray, weights: FloatArray, scan_points: int
 ) -> float:  # pragma: no cover - compiled (tested through steady_state)
@@ -343,7 +343,7 @@ def _contact_angle_row(
     return theta
 
 
-@njit(cache=True)
+@compiled
 def _steady_rows(
     load: FloatArray,
     slip: FloatArray,

@@ -96,10 +96,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 from terrain_estimation.bag import bag_topics
+from terrain_estimation.jit import compiled
 from terrain_estimation.sim2real.model import Candidate, Channel, FitParameter, StampOrigin, candidates_from_catalogue
 from terrain_estimation.sim2real.where import Sim2RealError
 
@@ -323,7 +323,7 @@ _P_KR, _P_CR, _P_KP, _P_CP, _P_ROLL_DRIVE, _P_PITCH_DRIVE, _P_IR, _P_IP, _P_ROLL
 _N_P = 26
 
 
-@njit(cache=True)
+@compiled
 def _derivative(s, oml, omr, hfx, hfy, p, wx, wy, side, static, lpfx, lpfy, ru, pu, out, work):
     """State derivative (into ``out``); returns (f_x, f_y, roll accel, pitch accel). Plant's equations."""
     n = wx.shape[0]
@@ -432,7 +432,7 @@ def _derivative(s, oml, omr, hfx, hfy, p, wx, wy, side, static, lpfx, lpfy, ru, 
     return f_x, f_y, roll_acc, pitch_acc
 
 
-@njit(cache=True)
+@compiled
 def _imu(s, f_x, f_y, roll_acc, pitch_acc, p, out_row):
     """Noise-free IMU (f_x, f_y, f_z, ω_x, ω_y, ω_z) of the plant's ``_measure`` (tilted body with lever arms)."""
     roll, roll_rate, pitch, pitch_rate = s[3], s[4], s[5], s[6]
@@ -452,7 +452,7 @@ def _imu(s, f_x, f_y, roll_acc, pitch_acc, p, out_row):
     out_row[5] = -sr * pitch_rate + cr * cp * r
 
 
-@njit(cache=True)
+@compiled
 def _replay_kernel(t, omega, x0, p, wx, wy, side, static, lpfx, lpfy, ru, pu, base_dt, stiff_rate):
     """RK4 replay over the sample times ``t`` (M,) with wheel speeds ``omega`` (M, 2); IMU (M, 6) at every sample.
 
