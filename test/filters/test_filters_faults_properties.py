@@ -5,6 +5,10 @@
   small models, noise spanning ten decades, and random inputs. With a
   rank-deficient process noise the covariance may legitimately become
   singular (e.g. ``F = 0``): the diagonal is then only non-negative.
+* The soil-stiffness estimator's compiled SCKF step
+  (``estimators.soil_stiffness_sckf``, what the quarter-car and LRV nodes
+  run) does the same over random quarter cars and LRVs (masses, stiffnesses,
+  noise over decades, step lengths, sub-steps, road, profile-noise term).
 * :func:`~terrain_estimation.filters.faults.guarded_step` never lets a
   non-finite estimate or an exception out, for every filter, over random
   models (some with a fault: ``f`` NaN beyond a random bound) and hostile
@@ -29,6 +33,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from terrain_estimation.estimators.soil_stiffness_sckf import STATUS_OK, model_operands, run_step
 from terrain_estimation.filters import (
     CubatureKalmanFilter,
     DivergenceConfig,
@@ -39,6 +44,7 @@ from terrain_estimation.filters import (
     guarded_step,
     sqrt_factor_fault,
 )
+from terrain_estimation.models.quarter_car import LRVModel, LRVParams, QuarterCarModel, QuarterCarParams
 
 EXAMPLES = 20
 TOTAL_STEPS = int(os.environ.get("TERRAIN_PROPERTY_STEPS", "4000"))
@@ -167,6 +173,92 @@ def test_sckf_property_figures():
     """Prints the figures of the property test above (it ran first, in file order)."""
     print(f"\nSCKF factor property: {_sckf_steps[0]} random predict+update steps, 0 failures")
     assert _sckf_steps[0] >= STEPS
+
+
+_compiled_steps = [0]
+
+
+@st.composite
+def bilinear_problems(draw):
+    """A random quarter car or LRV (parameters ×0.3…3, noise over decades), its true k_tot, step and road."""
+    lrv = draw(st.booleans())
+    scale = st.floats(0.3, 3.0)
+    q_scale = 10.0 ** draw(st.floats(-3.0, 3.0))
+    r_scale = 10.0 ** draw(st.floats(-2.0, 2.0))
+    common = {
+        "c": (1_500.0 if lrv else 2_000.0) * draw(scale),
+        "stiffness_state": draw(st.sampled_from(["k_tot", "log_k_s"])),
+        "ktot_noise_form": draw(st.sampled_from(["per_step", "printed"])),
+    }
+    if lrv:
+        p0 = LRVParams()
+        params: Any = LRVParams(
+            m_s=75.0 * draw(scale),
+            k=15_000.0 * draw(scale),
+            relative_damper=draw(st.booleans()),
+            q_diag=tuple(v * q_scale for v in p0.q_diag),
+            r_diag=tuple(v * r_scale for v in p0.r_diag),
+            **common,
+        )
+        model: Any = LRVModel(params)
+    else:
+        p0 = QuarterCarParams()
+        params = QuarterCarParams(
+            m_s=455.0 * draw(scale),
+            m_ns=45.5 * draw(scale),
+            k=25_000.0 * draw(scale),
+            k_t=175_000.0 * draw(scale),
+            q_diag=tuple(v * q_scale for v in p0.q_diag),
+            r_diag=tuple(v * r_scale for v in p0.r_diag),
+            **common,
+        )
+        model = QuarterCarModel(params)
+    k_true = model.k_series * draw(st.floats(0.01, 0.95))
+    dt = draw(st.sampled_from([0.002, 0.005, 0.01, 0.0107, 0.02]))
+    substeps = draw(st.integers(1, 20))
+    road = 10.0 ** draw(st.floats(-3.0, 0.0))  # ḣ amplitude (m/s)
+    profile_noise = draw(st.booleans())
+    seed = draw(st.integers(0, 2**32 - 1))
+    return model, k_true, dt, substeps, road, profile_noise, seed
+
+
+@SETTINGS
+@given(bilinear_problems())
+def test_compiled_soil_stiffness_step_factor_stays_triangular_finite_and_positive(problem):
+    model, k_true, dt, substeps, road, profile_noise, seed = problem
+    n, p = model.state_dim, model.measurement_dim
+    rng = np.random.default_rng(seed)
+    ops = model_operands(model)
+    filt = SquareRootCubatureKalmanFilter()
+    p0 = np.full(n, 1e-4)
+    p0[-1] = 1e8 if model.stiffness_state == "k_tot" else 0.3
+    state = filt.initial_state(model.stiffness_state_of_ktot(0.5 * model.k_series) * np.eye(n)[-1], np.diag(p0))
+    truth = model.stiffness_state_of_ktot(k_true) * np.eye(n)[-1]
+    sqrt_r = np.sqrt(np.asarray(model.measurement_noise_sqrt()).diagonal())
+    phase = rng.uniform(0.0, 6.3)
+    for step in range(STEPS):
+        t = step * dt + np.arange(substeps) * dt / substeps
+        hdot = road * np.sin(7.0 * t + phase) + 0.2 * road * rng.standard_normal(substeps)
+        truth = model.f(truth, hdot, dt)
+        z = model.h(truth, hdot) + sqrt_r * rng.standard_normal(p)
+        v_h, v_d = rng.uniform(0.0, 1e-8), rng.uniform(0.0, 1e-2)
+        cov = rng.uniform(-1.0, 1.0) * np.sqrt(v_h * v_d)
+        sigma_eps = np.array([[v_h, cov], [cov, v_d]])
+        status, x_pred, S_pred, _, accepted, x, S = run_step(
+            ops, model, state.x, state.S, hdot, dt, z, sigma_eps, profile_noise, None
+        )
+        assert status == STATUS_OK and accepted
+        for mean, factor in ((x_pred, S_pred), (x, S)):
+            assert np.isfinite(mean).all()
+            assert_valid_factor(factor, True)
+        state = replace(state, x=x, S=S)
+        _compiled_steps[0] += 1
+
+
+def test_compiled_soil_stiffness_property_figures():
+    """Prints the figures of the compiled-step property test above."""
+    print(f"\ncompiled soil-stiffness SCKF step: {_compiled_steps[0]} random predict+update steps, 0 failures")
+    assert _compiled_steps[0] >= STEPS
 
 
 FILTERS = (ExtendedKalmanFilter, UnscentedKalmanFilter, CubatureKalmanFilter, SquareRootCubatureKalmanFilter)
