@@ -34,10 +34,10 @@ PYTEST_ARGS ?=
 
 setup: $(PKGS_STAMP)
 
-$(BASE_STAMP): requirements.txt constraints.txt
+$(BASE_STAMP): requirements.txt requirements-dev.txt constraints.txt
 	@test -x $(PY) || { echo "creating $(VENV) with $(PYTHON)"; $(PYTHON) -m venv $(VENV); }
 	@echo "installing ROS 2 Jazzy wheels and Python dependencies into $(VENV) (about a minute)"
-	@$(PIP_INSTALL) -r requirements.txt
+	@$(PIP_INSTALL) -r requirements-dev.txt
 	@touch $@
 
 $(MSGS_STAMP): $(BASE_STAMP) $(MSG_SOURCES)

@@ -249,8 +249,11 @@ def _filter_data(n_steps: int, seed: int) -> tuple[Any, Any, Any]:
 
 def bench_filters(cfg: BenchConfig) -> list[dict[str, Any]]:
     """Per-step (predict + update) time of our four filters and of filterpy's UKF."""
-    from filterpy.kalman import MerweScaledSigmaPoints
-    from filterpy.kalman import UnscentedKalmanFilter as FilterpyUKF
+    try:
+        from filterpy.kalman import MerweScaledSigmaPoints
+        from filterpy.kalman import UnscentedKalmanFilter as FilterpyUKF
+    except ImportError as exc:  # a development dependency, not a run-time one
+        raise RuntimeError("the filter benchmark compares with filterpy: pip install -r requirements-dev.txt") from exc
 
     from terrain_estimation.estimators.soil_stiffness import make_filter
     from terrain_estimation.models.quarter_car import QuarterCarModel
