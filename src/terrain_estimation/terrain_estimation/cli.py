@@ -23,9 +23,11 @@ code  name                   meaning
 
 from __future__ import annotations
 
+import functools
 import sys
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from typing import Protocol
 
 __all__ = [
     "EXIT_OK",
@@ -34,6 +36,7 @@ __all__ = [
     "EXIT_INTERNAL",
     "EXIT_INTERRUPTED",
     "InputError",
+    "cli_main",
     "input_errors",
     "run_cli",
 ]
@@ -77,3 +80,22 @@ def run_cli(prog: str, body: Callable[[], int], *, interrupted: str = "interrupt
         traceback.print_exc()
         print(f"{prog}: internal error (a bug: please report it with the traceback above)", file=sys.stderr)
         return EXIT_INTERNAL
+
+
+class Main(Protocol):
+    """A tool's entry point: ``main(argv=None) -> exit status``."""
+
+    def __call__(self, argv: Sequence[str] | None = None, /) -> int: ...
+
+
+def cli_main(prog: str) -> Callable[[Main], Main]:
+    """Decorate a tool's ``main(argv)`` so that what it raises ends in the project's exit statuses (:func:`run_cli`)."""
+
+    def decorate(main: Main) -> Main:
+        @functools.wraps(main)
+        def wrapped(argv: Sequence[str] | None = None, /) -> int:
+            return run_cli(prog, lambda: main(argv))
+
+        return wrapped
+
+    return decorate

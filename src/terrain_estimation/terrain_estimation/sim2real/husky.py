@@ -53,6 +53,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize
 
+from terrain_estimation.cli import cli_main
 from terrain_estimation.sim2real.model import candidates_from_catalogue
 from terrain_estimation.sim2real.skid_steer import (
     ReplayVehicle,
@@ -244,6 +245,7 @@ def _split(run: str) -> str:
     return "train" if int(run.rsplit("_", 1)[1]) % 2 == 0 else "test"
 
 
+@cli_main("sim2real-husky")
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m terrain_estimation.sim2real.husky", description=(__doc__ or "").splitlines()[0]

@@ -136,6 +136,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from terrain_estimation.cli import cli_main
 from terrain_estimation.jit import compiled
 from terrain_estimation.sim2real.model import Candidate, Channel, FitParameter
 from terrain_estimation.sim2real.where import Sim2RealError
@@ -1368,6 +1369,7 @@ def _identifiability_markdown(rows: Sequence[Mapping[str, Any]]) -> list[str]:
     return lines
 
 
+@cli_main("sim2real-single-wheel")
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m terrain_estimation.sim2real.single_wheel --data DIR --out DIR``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -66,6 +66,8 @@ from typing import Any
 
 import numpy as np
 
+from terrain_estimation.cli import cli_main
+
 __all__ = [
     "ROW_LABELS",
     "SKID_ROW_LABELS",
@@ -916,6 +918,7 @@ def _format_rover(rover: dict[str, Any]) -> list[str]:
     return lines
 
 
+@cli_main("make bench")
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="terrain-bench",

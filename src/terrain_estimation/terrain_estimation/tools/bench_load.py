@@ -109,6 +109,8 @@ from typing import Any
 
 import numpy as np
 
+from terrain_estimation.cli import cli_main
+
 __all__ = [
     "Case",
     "EXECUTORS",
@@ -1054,6 +1056,7 @@ def format_markdown(
     return "\n".join(lines)
 
 
+@cli_main("make bench-load")
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m terrain_estimation.tools.bench_load",

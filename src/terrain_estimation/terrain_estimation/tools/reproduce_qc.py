@@ -45,6 +45,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from terrain_estimation.cli import cli_main
 from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimator, SoilStiffnessEstimatorConfig
 from terrain_estimation.models.quarter_car import LRVParams, QuarterCarParams
 from terrain_estimation.tools.reporting import Report, SummaryRow, reproduction_arguments
@@ -1621,6 +1622,7 @@ def _write_report(
     return rep.out
 
 
+@cli_main("reproduce-qc")
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     args, argv_list = reproduction_arguments(

@@ -55,6 +55,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from terrain_estimation.cli import cli_main
 from terrain_estimation.estimators.rover import (
     RoverEstimatorConfig,
     RoverTerrainEstimator,
@@ -2217,6 +2218,7 @@ def _write_report(
     return rep.out
 
 
+@cli_main("reproduce-rover")
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     args, argv_list = reproduction_arguments(

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from terrain_estimation.cli import cli_main
 from terrain_estimation.estimators.skid_steer import SkidSteerEstimator, SkidSteerEstimatorConfig
 from terrain_estimation.models.skid_steer import WHEEL_NAMES, SkidSteerParams, axle_positions
 from terrain_estimation.tools.reporting import Claim, Report, claims_table, reproduction_arguments
@@ -1446,6 +1447,7 @@ def _write_report(
     return rep.out
 
 
+@cli_main("reproduce-skid")
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     args, argv_list = reproduction_arguments(

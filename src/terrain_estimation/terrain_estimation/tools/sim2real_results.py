@@ -23,6 +23,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from terrain_estimation.cli import cli_main
+
 __all__ = ["SECTIONS", "assemble", "main"]
 
 SECTIONS = (
@@ -89,6 +91,7 @@ def assemble(root: str | Path = "docs/results") -> str:
     return "\n".join(parts)
 
 
+@cli_main("sim2real-results")
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", default="docs/results", help="results folder (default docs/results)")

@@ -44,6 +44,8 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
+from terrain_estimation.cli import cli_main
+
 __all__ = [
     "DEFAULT_SEED",
     "SIGNATURE_BINS",
@@ -528,6 +530,7 @@ def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
 # ---------------------------------------------------------------------------
 
 
+@cli_main("validate-sim2real")
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="validate-sim2real", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="out/sim2real_validation", help="working directory (suite, diagnoses)")

@@ -164,6 +164,7 @@ from typing import Any
 import numpy as np
 
 from terrain_estimation.bag import AtomicBagWriter, BagError
+from terrain_estimation.cli import cli_main
 from terrain_estimation.params import ParameterError
 from terrain_estimation.ros.time import ns_to_stamp, stamp_to_ns
 from terrain_estimation.tools.estimate import topic_name
@@ -1043,6 +1044,7 @@ def generate(
     return {"bags": total, "seconds": time.monotonic() - started}
 
 
+@cli_main("withheld")
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m vehicle_sim.tools.withheld", description=(__doc__ or "").splitlines()[0]
