@@ -37,7 +37,7 @@ WRITER = textwrap.dedent(
 
     signal.signal(signal.SIGINT, signal.default_int_handler)
     path = sys.argv[1]
-    with AtomicBagWriter(path) as writer:
+    with AtomicBagWriter(path, overwrite=True) as writer:
         for i in range(10**9):
             writer.write("/x", Float64(data=float(i)), 1_000 + i)
             if i == 2000:

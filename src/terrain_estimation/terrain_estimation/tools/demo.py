@@ -7,7 +7,8 @@ talking over ROS 2 topics through DDS on this host. The "estimates" column
 says how many of the expected estimates arrived: fewer means messages were
 lost (a loaded machine, or a real-time factor the estimator cannot keep).
 Afterwards it prints one table per kind of estimate and writes plots under
-``out/``:
+``out/`` (``--out``; an existing non-empty directory no project tool made is
+refused unless ``--overwrite``, and nothing there is deleted):
 
 * soil stiffness (quarter car, LRV): final estimate against ground truth,
   time to converge, innovation consistency, the estimator's diagnostic level;
@@ -53,8 +54,10 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
+from terrain_estimation.cli import EXIT_INPUT
 from terrain_estimation.models.rover import WHEELS
 from terrain_estimation.models.terrain_response import PolynomialModel2D, ValidityRegion
+from terrain_estimation.outputs import OutputPathError, prepare_output_dir
 
 __all__ = [
     "Recording",
@@ -949,6 +952,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="terrain-demo", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="out", help="directory for the plots (default: out)")
     parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write the plots into --out even if it holds files and was not made by a project tool",
+    )
+    parser.add_argument(
         "--realtime-factor",
         type=float,
         default=None,
@@ -967,8 +975,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    # The plots go into a directory a project tool made (or an empty one); other files are never touched.
+    try:
+        out = prepare_output_dir(args.out, overwrite=args.overwrite, tool="terrain-demo")
+    except OutputPathError as exc:
+        print(f"terrain-demo: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
     # results per kind, kinds in the order of their first scenario
     by_kind: dict[str, tuple[DemoKind[Any], list[Any]]] = {}
     for scenario in SCENARIOS:

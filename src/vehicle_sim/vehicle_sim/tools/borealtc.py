@@ -30,6 +30,11 @@ Stamps: the CSV time (s from the run start, the same clock for both files)
 plus ``--start-stamp`` (default 0), whole nanoseconds; log time = stamp.
 A bad CSV (missing column, non-numeric or non-finite value, time not
 increasing) is refused with the file, row, column and value.
+
+Outputs: every run's bag path is checked before any is written. An existing
+``run_XX`` is refused (exit 2) unless ``--overwrite``, which replaces only a
+previous bag there; nothing else under ``DIR`` is ever touched, and ``DIR``
+may not be inside the data folder (:mod:`terrain_estimation.outputs`).
 """
 
 from __future__ import annotations
@@ -45,7 +50,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["BorealRun", "CsvError", "convert_run", "find_runs", "main", "read_csv", "read_husky_config"]
+from terrain_estimation.cli import EXIT_OK, InputError, run_cli
+
+__all__ = ["BorealRun", "CsvError", "convert_run", "find_runs", "main", "read_csv", "read_husky_config", "run_path"]
 
 FloatArray = NDArray[np.float64]
 
@@ -154,6 +161,11 @@ def find_runs(data: str | Path) -> list[BorealRun]:
     return runs
 
 
+def run_path(run: BorealRun, out: str | Path) -> Path:
+    """Where :func:`convert_run` writes ``run``'s bag: ``out/<TERRAIN>/run_XX``."""
+    return Path(out) / run.terrain / f"run_{run.index}"
+
+
 def convert_run(
     run: BorealRun,
     out: str | Path,
@@ -163,8 +175,15 @@ def convert_run(
     transmission_ratio: float,
     start_stamp: float = 0.0,
     frame_prefix: str = "husky",
+    overwrite: bool = False,
+    inputs: Sequence[str | Path] = (),
 ) -> Path:
-    """Write one run's contract bag to ``out/<TERRAIN>/run_XX``; returns its path."""
+    """Write one run's contract bag to ``out/<TERRAIN>/run_XX``; returns its path.
+
+    ``overwrite`` and ``inputs`` (besides the run's two CSV files) go to
+    :class:`~terrain_estimation.bag.AtomicBagWriter`: an existing bag is
+    replaced only with ``overwrite``, anything else never.
+    """
     from sensor_msgs.msg import Imu, JointState
 
     from terrain_estimation.bag import AtomicBagWriter
@@ -208,8 +227,8 @@ def convert_run(
         joints.velocity = [float(v) for v in motor_velocity[k]]
         messages.append((stamp, joint_topic, joints))
     messages.sort(key=lambda m: m[0])
-    path = Path(out) / run.terrain / f"run_{run.index}"
-    with AtomicBagWriter(path) as writer:
+    path = run_path(run, out)
+    with AtomicBagWriter(path, overwrite=overwrite, inputs=[run.imu, run.pro, *inputs]) as writer:
         for stamp, topic, msg in messages:
             writer.write(topic, msg, stamp)
     return path
@@ -225,25 +244,36 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--config", help="Husky config (default config/husky.yaml): wheel radius, transmission ratio")
     parser.add_argument("--start-stamp", type=float, default=0.0, help="stamp of CSV time 0 (s, default 0)")
     parser.add_argument("--terrain", action="append", help="only these terrains (folder names)")
+    parser.add_argument("--overwrite", action="store_true", help="replace previous run bags (never other files)")
     args = parser.parse_args(argv)
-    try:
+
+    def body() -> int:
+        from terrain_estimation.outputs import check_output_path
+
         cfg = read_husky_config(args.config)
         runs = [r for r in find_runs(args.data) if not args.terrain or r.terrain in args.terrain]
-        for run in runs:
-            path = convert_run(
-                run,
-                args.out,
-                namespace=args.namespace,
-                wheel_radius=cfg["vehicle.wheel_radius"],
-                transmission_ratio=cfg["vehicle.transmission_ratio"],
-                start_stamp=args.start_stamp,
-            )
-            print(f"{run.name}: {path}", file=sys.stderr)
-    except (CsvError, ValueError, OSError) as exc:
-        print(f"borealtc: error: {exc}", file=sys.stderr)
-        return 2
-    print(f"wrote {len(runs)} bags to {args.out}")
-    return 0
+        inputs = [args.data] + ([args.config] if args.config else [])
+        for run in runs:  # every output checked before the first is written
+            check_output_path(run_path(run, args.out), overwrite=args.overwrite, inputs=inputs)
+        try:
+            for run in runs:
+                path = convert_run(
+                    run,
+                    args.out,
+                    namespace=args.namespace,
+                    wheel_radius=cfg["vehicle.wheel_radius"],
+                    transmission_ratio=cfg["vehicle.transmission_ratio"],
+                    start_stamp=args.start_stamp,
+                    overwrite=args.overwrite,
+                    inputs=inputs,
+                )
+                print(f"{run.name}: {path}", file=sys.stderr)
+        except OSError as exc:  # an output directory that cannot be created or written
+            raise InputError(f"cannot write under {args.out!r}: {exc}") from exc
+        print(f"wrote {len(runs)} bags to {args.out}")
+        return EXIT_OK
+
+    return run_cli("borealtc", body, interrupted="interrupted; the bags written so far are complete, no partial one")
 
 
 if __name__ == "__main__":

@@ -4,6 +4,11 @@ Steps the same simulator adapter the ``quarter_car_sim`` node runs and writes
 exactly the messages the node would publish (plus ``/clock``) into a rosbag2
 bag, with no ROS graph: a bag of seconds of driving takes a fraction of that.
 The log time of each message is its header stamp (``/clock``: the step time).
+
+An existing output is refused (exit 2) unless ``--overwrite`` is given, and
+even then only a previous bag is replaced, never a directory of other files
+or one of the run's inputs (the ``--config`` file); see
+:mod:`terrain_estimation.outputs`.
 """
 
 from __future__ import annotations
@@ -17,8 +22,8 @@ from typing import Any
 
 from rosgraph_msgs.msg import Clock
 
-from terrain_estimation.bag import AtomicBagWriter, BagError
-from terrain_estimation.params import ParameterError
+from terrain_estimation.bag import AtomicBagWriter
+from terrain_estimation.cli import EXIT_OK, run_cli
 from terrain_estimation.ros.time import sec_to_stamp, stamp_to_ns
 from terrain_estimation.tools.estimate import _parse_overrides, topic_name
 from vehicle_sim.ros.registry import SIMULATORS, get_simulator, simulator_parameters
@@ -35,8 +40,14 @@ def record(
     config: str | Path | None = None,
     overrides: Mapping[str, Any] | None = None,
     progress: bool = False,
+    overwrite: bool = False,
 ) -> int:
-    """Simulate ``duration`` seconds and write the bag; return the message count."""
+    """Simulate ``duration`` seconds and write the bag; return the message count.
+
+    ``overwrite`` lets a previous bag at ``output`` be replaced
+    (:class:`~terrain_estimation.bag.AtomicBagWriter`); the output is checked
+    before any simulation.
+    """
     if not duration > 0:
         raise ValueError(f"duration must be > 0 s, got {duration}")
     entry = get_simulator(vehicle)
@@ -44,9 +55,9 @@ def record(
     values = simulator_parameters(entry, config, overrides)
     adapter = entry.make_adapter(values, ns)
     topics = {spec.key: topic_name(ns, spec.topic) for spec in adapter.outputs}
-    started = time.monotonic()
-    last = started
-    with AtomicBagWriter(output) as writer:
+    inputs = [config] if config is not None else []
+    last = time.monotonic()
+    with AtomicBagWriter(output, overwrite=overwrite, inputs=inputs) as writer:
         t = 0.0
         while t < duration - 1e-9:
             t, messages = adapter.step()
@@ -63,12 +74,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="terrain-simulate", description=__doc__.splitlines()[0])
     parser.add_argument("--vehicle", required=True, choices=sorted(SIMULATORS))
     parser.add_argument("--duration", type=float, required=True, help="simulated seconds")
-    parser.add_argument("-o", "--output", required=True, help="output bag directory (replaced atomically)")
+    parser.add_argument("-o", "--output", required=True, help="output bag directory (must not exist)")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace a previous bag at --output (never anything else)"
+    )
     parser.add_argument("--namespace", help="namespace of the topics (default: the vehicle's)")
     parser.add_argument("--config", help="parameter file (default: config/<vehicle>.yaml)")
     parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="override a parameter")
     args = parser.parse_args(argv)
-    try:
+
+    def body() -> int:
         count = record(
             args.vehicle,
             args.duration,
@@ -77,15 +92,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             config=args.config,
             overrides=_parse_overrides(args.param),
             progress=True,
+            overwrite=args.overwrite,
         )
-    except (BagError, ParameterError, ValueError) as exc:
-        print(f"terrain-simulate: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("terrain-simulate: interrupted; no bag written", file=sys.stderr)
-        return 130
-    print(f"wrote {count} messages ({args.duration:g} s of {args.vehicle}) to {args.output}")
-    return 0
+        print(f"wrote {count} messages ({args.duration:g} s of {args.vehicle}) to {args.output}")
+        return EXIT_OK
+
+    return run_cli("terrain-simulate", body, interrupted="interrupted; no bag written")
 
 
 if __name__ == "__main__":
