@@ -80,15 +80,20 @@ def estimator_parameters(
     vehicle: VehicleEntry,
     config: str | Path | None = None,
     overrides: Mapping[str, Any] | None = None,
+    *,
+    source: str = "--param",
 ) -> dict[str, ParamValue]:
     """Validated estimator parameters: specs' defaults < config file < overrides.
 
-    The same resolution the live node gets from ``--params-file``.
+    The same resolution the live node gets from ``--params-file``. Strict: a
+    name the estimator does not declare, in the file (``/**`` included: see
+    :mod:`terrain_estimation.params`) or in ``overrides`` (called ``source`` in
+    the error), is a ParameterError naming the closest declared names.
     """
     from terrain_estimation.ros.framework import EstimatorNode
 
     specs = tuple(EstimatorNode.COMMON_SPECS) + tuple(vehicle.specs)
     path = Path(config) if config is not None else vehicle.config_path()
-    values = load_parameter_file(path, [vehicle.node_name]) if path.exists() or config else {}
+    values = load_parameter_file(path, [vehicle.node_name], specs=specs) if path.exists() or config else {}
     values.update(overrides or {})
-    return resolve_parameters(specs, values)
+    return resolve_parameters(specs, values, strict=True, source=source)

@@ -9,6 +9,11 @@ to rcl as the first ``--params-file``, so the user's own ``--ros-args`` come
 later. Note that rcl ranks a node-specific file entry (the config's
 ``/**/<node>`` section) above a global ``-p name:=value``: override such a
 parameter with ``--config`` or a later ``--params-file``.
+
+Unknown names are refused (rcl would ignore them): both check the config file
+against the node's specs (its ``/**`` section and the node's own; see
+:mod:`terrain_estimation.params`) and :func:`build_node` the names of
+``overrides``. A user's further ``--ros-args`` parameters are rcl's to apply.
 """
 
 from __future__ import annotations
@@ -24,7 +29,13 @@ from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from terrain_estimation.params import ParameterError, ParamSpec, load_parameter_file
+from terrain_estimation.params import (
+    ROS_PARAMETERS,
+    ParameterError,
+    ParamSpec,
+    load_parameter_file,
+    unknown_parameter_error,
+)
 from terrain_estimation.ros.framework import spin_node
 
 __all__ = ["RegistryEntry", "build_node", "node_main"]
@@ -53,6 +64,11 @@ class RegistryEntry(Protocol):
     def config_path(self) -> Path: ...
 
 
+def _node_specs(node_class: Callable[..., Node], entry: RegistryEntry) -> tuple[ParamSpec, ...]:
+    """All the specs the node declares: its class's COMMON_SPECS and the entry's."""
+    return tuple(getattr(node_class, "COMMON_SPECS", ())) + tuple(entry.specs)
+
+
 def build_node(
     node_class: Callable[..., N],
     entry: RegistryEntry,
@@ -63,10 +79,20 @@ def build_node(
     use_config: bool = True,
     **node_kwargs: Any,
 ) -> N:
-    """Build ``node_class`` (EstimatorNode or SimulatorNode) for ``entry`` in-process."""
+    """Build ``node_class`` (EstimatorNode or SimulatorNode) for ``entry`` in-process.
+
+    Raises:
+        ParameterError: the config file has a name or value the node does not
+            accept, or ``overrides`` a name it does not declare.
+    """
+    specs = _node_specs(node_class, entry)
     values: dict[str, object] = {}
     if use_config and (config or entry.config_path().exists()):
-        values = load_parameter_file(config or entry.config_path(), [entry.node_name])
+        values = load_parameter_file(config or entry.config_path(), [entry.node_name], specs=specs)
+    declared = {s.name for s in specs}
+    for name in overrides or {}:
+        if name not in declared and name not in ROS_PARAMETERS:
+            raise unknown_parameter_error(name, declared, "overrides")
     values.update(overrides or {})
     return node_class(
         entry.node_name,
@@ -94,8 +120,14 @@ def node_main(
     parser.add_argument("--config", help="parameter file (default: config/<vehicle>.yaml)")
     args = parser.parse_args(own)
     entry = registry[args.vehicle]
-    config = args.config or str(entry.config_path())
-    rcl_args = ["--ros-args", "--params-file", config] if Path(config).exists() else []
+    config = args.config or (str(entry.config_path()) if entry.config_path().exists() else None)
+    if config is not None:
+        try:
+            load_parameter_file(config, [entry.node_name], specs=_node_specs(node_class, entry))
+        except ParameterError as exc:
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+            return 2
+    rcl_args = ["--ros-args", "--params-file", config] if config is not None else []
     rclpy.init(args=[prog, *rcl_args, *ros_args])
     try:
         node = build_node(node_class, entry, use_config=False)

@@ -6,7 +6,9 @@ parameter the nodes declare is in the file with its description, unit and
 range, and the file never names a parameter the nodes do not know.
 
 Sections: ``/**`` holds the vehicle's physical parameters, read by the
-estimator and the simulator alike; then one section per node.
+estimator and the simulator alike; then one section per node. Each node
+refuses a ``/**`` name it does not declare (:mod:`terrain_estimation.params`),
+so a parameter of one node only belongs in that node's section.
 """
 
 from __future__ import annotations

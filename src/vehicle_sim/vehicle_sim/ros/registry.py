@@ -67,13 +67,22 @@ def get_simulator(name: str) -> SimulatorEntry:
 
 
 def simulator_parameters(
-    entry: SimulatorEntry, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None
+    entry: SimulatorEntry,
+    config: str | Path | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    *,
+    source: str = "--param",
 ) -> dict[str, ParamValue]:
-    """Validated simulator parameters: defaults < config file < overrides."""
+    """Validated simulator parameters: defaults < config file < overrides.
+
+    Strict, as :func:`terrain_estimation.vehicles.estimator_parameters`: a name
+    the simulator does not declare, in the file (``/**`` included) or in
+    ``overrides`` (called ``source`` in the error), is a ParameterError.
+    """
     from terrain_estimation.ros.framework import SimulatorNode
 
     specs = tuple(SimulatorNode.COMMON_SPECS) + tuple(entry.specs)
     path = Path(config) if config is not None else entry.config_path()
-    values = load_parameter_file(path, [entry.node_name]) if path.exists() or config else {}
+    values = load_parameter_file(path, [entry.node_name], specs=specs) if path.exists() or config else {}
     values.update(overrides or {})
-    return resolve_parameters(specs, values)
+    return resolve_parameters(specs, values, strict=True, source=source)
