@@ -18,11 +18,14 @@ into messages. The framework provides the rest, the same for every vehicle:
   - **bad input**: every message is checked before the adapter sees it
     (:class:`~terrain_estimation.ros.validation.InputGuard`: frame id,
     stamp ahead of the clock, duplicated or out of order, non-finite
-    fields, covariance not PSD, accelerations in g or without gravity, as
-    declared by the adapter's :class:`TopicSpec`). A bad message is dropped
-    whole, counted per reason in ``/diagnostics`` (``input rejected: <topic>:
-    <field> <problem>``; WARN while new ones arrive) and logged with its
-    value, at most once per ``input.log_throttle`` per reason;
+    fields, covariance not PSD, an acceleration sample beyond any
+    accelerometer's range, accelerations in g, without gravity, upside down
+    or on their side, as declared by the adapter's :class:`TopicSpec`). A bad
+    message is dropped whole, counted per reason in ``/diagnostics`` (``input
+    rejected: <topic>: <field> <problem>``; WARN while new ones arrive) and
+    logged with its value, at most once per ``input.log_throttle`` per reason.
+    Until every accelerometer has been judged plausible, an adapter that
+    reports convergence (:class:`JudgedInputs`) claims none;
   - **non-finite output**: an estimate holding a NaN or Inf is never
     published (counted, ERROR);
   - **clock jumps**: a jump of the node's clock backward by more than
@@ -51,7 +54,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import rclpy
 from rcl_interfaces.msg import (
@@ -82,6 +85,7 @@ __all__ = [
     "AdapterHealth",
     "EstimatorAdapter",
     "EstimatorNode",
+    "JudgedInputs",
     "SimulatorAdapter",
     "SimulatorNode",
     "declare_specs",
@@ -132,8 +136,10 @@ class TopicSpec:
             JointState entry by joint name).
         covariances: 3x3 covariance arrays that must be symmetric positive
             semi-definite unless marked not measured.
-        gravity_fields: specific-force components whose windowed mean must
-            have the magnitude ``gravity`` (m/s², REP 145).
+        gravity_fields: specific-force components (REP 145, m/s²): each sample
+            within ``input.max_acceleration``, their windowed mean of the
+            magnitude ``gravity`` and, with a ``z`` among them, pointing up
+            (REP 103) within ``input.gravity_max_tilt``.
         gravity: [m/s^2] the vehicle's gravity.
         timeout: [s] diagnostics WARN when the topic is silent for longer (0: never).
         on_timeout: what the estimator does meanwhile (shown in the warning).
@@ -314,6 +320,20 @@ class EstimatorAdapter(Protocol):
     def reset(self) -> None: ...
 
 
+@runtime_checkable
+class JudgedInputs(Protocol):
+    """An adapter that withholds convergence until the input checks have judged its inputs.
+
+    Runners (:class:`EstimatorNode`, the offline runner) set ``inputs_judged`` to
+    :attr:`InputGuard.gravity_judged <terrain_estimation.ros.validation.InputGuard.gravity_judged>`
+    before each message they pass to ``handle()``; while it is False no estimate claims to
+    have converged (its input may still be found bad). An adapter used without input
+    checks keeps True.
+    """
+
+    inputs_judged: bool
+
+
 class SimulatorAdapter(Protocol):
     """One vehicle's bridge between its plant and the topics it publishes."""
 
@@ -472,6 +492,24 @@ class EstimatorNode(_ParamsMixin, Node):
             60.0,
         ),
         ParamSpec(
+            "input.gravity_max_tilt",
+            60.0,
+            "[deg] an accelerometer whose mean specific force over input.gravity_window is tilted further from +z "
+            "(REP 103: z up; a vehicle at rest reads +g on z) is rejected; pointing down (z <= 0): upside down. A "
+            "35 deg slope plus a sustained 0.4 g of acceleration tilts it about 57 deg; not checked without z",
+            1.0,
+            90.0,
+        ),
+        ParamSpec(
+            "input.max_acceleration",
+            50.0,
+            "[g] an accelerometer sample with a specific-force component beyond this many standard g is a glitch "
+            "(MEMS accelerometers saturate at 2-16 g; a hard wheel impact is tens of g) and is rejected alone, "
+            "before it enters the gravity window",
+            1.0,
+            10000.0,
+        ),
+        ParamSpec(
             "input.restart_after_out_of_order",
             50,
             "[-] this many consecutive out-of-order samples of one topic, each later than the one before, are a "
@@ -518,6 +556,7 @@ class EstimatorNode(_ParamsMixin, Node):
         self.values = declare_specs(self, all_specs)
         self._make_adapter = make_adapter
         self.adapter = make_adapter(self.values, self.get_namespace())
+        self._judged = self.adapter if isinstance(self.adapter, JudgedInputs) else None
         self.messages_handled = 0
         self.published: dict[str, int] = {}  # output key -> messages published
         self._output_publishers = {
@@ -640,6 +679,8 @@ class EstimatorNode(_ParamsMixin, Node):
             if rejection is not None:
                 self._on_rejection(rejection)
                 return
+            if self._judged is not None:
+                self._judged.inputs_judged = self.guard.gravity_judged
             for out_key, out_msg in self.adapter.handle(key, msg):
                 self._publish(out_key, out_msg)
         finally:
@@ -792,6 +833,7 @@ class EstimatorNode(_ParamsMixin, Node):
         # A parameter of the model or filter changed: rebuild from the new
         # values. The filter restarts; say so rather than mix two models.
         self.adapter = self._make_adapter(self.values, self.get_namespace())
+        self._judged = self.adapter if isinstance(self.adapter, JudgedInputs) else None
         self._last_updates = 0
         self.guard = InputGuard(self.adapter.inputs, self.values)
         self._rejected_reported = 0

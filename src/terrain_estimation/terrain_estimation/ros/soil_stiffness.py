@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 from geometry_msgs.msg import PointStamped
@@ -414,7 +415,14 @@ def estimate_to_msg(estimate: SoilStiffnessEstimate, frame_id: str) -> SoilStiff
 
 
 class SoilStiffnessAdapter:
-    """Messages ↔ :class:`SoilStiffnessEstimator` for one vehicle."""
+    """Messages ↔ :class:`SoilStiffnessEstimator` for one vehicle.
+
+    Attributes:
+        inputs_judged: set by the runner before each message (a
+            :class:`~terrain_estimation.ros.framework.JudgedInputs`): while the input
+            checks have not judged every accelerometer plausible, estimates are published
+            with ``converged`` false (their input may still be found bad).
+    """
 
     def __init__(self, values: Mapping[str, ParamValue], namespace: str) -> None:
         self.config = estimator_config(values)
@@ -445,6 +453,7 @@ class SoilStiffnessAdapter:
         self.outputs: Sequence[TopicSpec] = (
             TopicSpec("soil_stiffness", "soil_stiffness", SoilStiffness, "estimate", truth_fields=("k_s", "k_tot")),
         )
+        self.inputs_judged = True
         self.reset()
 
     def reset(self) -> None:
@@ -514,6 +523,8 @@ class SoilStiffnessAdapter:
 
     def _drain(self) -> list[SoilStiffnessEstimate]:
         estimates = self.estimator.drain_estimates()
+        if not self.inputs_judged and estimates:
+            estimates = [replace(e, converged=False) if e.converged else e for e in estimates]
         h = self.health
         gappy_steps = self._profile_gappy
         for e in estimates:

@@ -19,15 +19,27 @@ What is checked, per input topic (:class:`~terrain_estimation.ros.framework.Topi
 * covariance arrays (3x3, row major) are finite, symmetric and positive
   semi-definite, unless marked not measured (first element -1, the
   sensor_msgs convention);
-* accelerometers: the magnitude of the mean specific force over the last
-  ``input.gravity_window`` seconds is within ``input.gravity_tolerance`` of
-  the vehicle's gravity (REP 145: specific force, gravity included, in m/s²).
-  A stream in g (mean ≈ 1) or with gravity removed (mean ≈ 0) is rejected
+* accelerometers, each sample: no specific-force component (``gravity_fields``)
+  beyond ``input.max_acceleration`` (in standard g). No vehicle accelerometer
+  reads that much (MEMS parts saturate at 2-16 g, a hard impact is tens of g):
+  such a sample is a glitch and is rejected alone, before it enters the
+  window below, so it costs that one sample;
+* accelerometers, over the last ``input.gravity_window`` seconds: the
+  magnitude of the mean specific force is within ``input.gravity_tolerance``
+  of the vehicle's gravity (REP 145: specific force, gravity included, in
+  m/s²), and, when ``z`` is among the gravity fields, it points up (REP 103:
+  z up, a vehicle at rest reads +g on z): its z component is positive and it
+  is tilted from +z by at most ``input.gravity_max_tilt`` (a slope tilts
+  gravity in the body frame; the rover's x-z fields see the pitch only).
+  Without a z field the direction is not checked. A stream in g (mean ≈ 1),
+  with gravity removed (mean ≈ 0), upside down or on its side is rejected
   until it is plausible again. The mean needs half a window of samples to be
-  judged; the samples of that first half-window (or those of a stream that
-  drifts out of the band) may have reached the filter before the verdict, so
-  the first rejection of this kind asks the node to restart the estimator
-  (:attr:`Rejection.restart`).
+  judged (again after a gap that emptied the window); the samples taken
+  before the verdict (or those of a stream that drifts out of the band) may
+  have reached the filter, so the first rejection of this kind asks the node
+  to restart the estimator (:attr:`Rejection.restart`), and until every
+  accelerometer has been judged plausible (:attr:`InputGuard.gravity_judged`)
+  no estimate may claim to have converged.
 
 A source whose clock went back without ``/clock`` saying so (a bag looped
 without ``--clock``, a sensor driver restarted) would otherwise be rejected
@@ -303,36 +315,72 @@ def _value_finite(value: Any) -> bool:
     return True
 
 
+_EXACT_ABOVE = 1e3
+"""[m/s^2] (≈ 100 g) a window sample with a component beyond this makes the window recompute its sum
+exactly once the sample has left: a running sum keeps the rounding error of every value that passed
+through it ((9.8 + 1e20) - 1e20 is 0); below this bound that error is some 1e-13 m/s^2 of the mean."""
+
+
 class _GravityWindow:
-    """Running mean of the specific-force vector of one topic over a time window."""
+    """Running mean of the specific-force vector of one topic over a time window.
+
+    The sum runs in floats (Python floats: the same sums as float64 arrays, faster). A
+    sample beyond :data:`_EXACT_ABOVE` (only let in with ``input.max_acceleration``
+    raised, or driven directly) would leave its rounding error, or an infinity, in it
+    for ever: once the newest such sample has left, the sum is recomputed exactly
+    (:func:`math.fsum`) from the samples in the window.
+
+    Attributes:
+        verdict: None while not judged (less than half a window of samples), else
+            whether the last judgement found the stream plausible (set by the guard).
+    """
 
     def __init__(self, window_s: float) -> None:
         self.window_s = window_s
+        self.half_s = 0.5 * window_s
         self.samples: deque[tuple[float, tuple[float, ...]]] = deque()
-        self.total: list[float] | None = None  # (Python floats: the same sums as float64 arrays, faster)
-        self.bad = False
+        self.total: list[float] | None = None
+        self.verdict: bool | None = None
+        self._pops_to_exact = 0  # pops until the newest sample beyond _EXACT_ABOVE has left (0: none inside)
 
     def add(self, t: float, vector: tuple[float, ...]) -> None:
-        self.samples.append((t, vector))
+        samples = self.samples
+        samples.append((t, vector))
         if self.total is None:
             self.total = list(vector)
         else:
             self.total = [a + b for a, b in zip(self.total, vector, strict=True)]
-        while self.samples and t - self.samples[0][0] > self.window_s:
-            _, old = self.samples.popleft()
+        if not -_EXACT_ABOVE <= min(vector) <= max(vector) <= _EXACT_ABOVE:  # (NaN: never reaches the guard's)
+            self._pops_to_exact = len(samples)
+        while t - samples[0][0] > self.window_s:
+            _, old = samples.popleft()
             self.total = [a - b for a, b in zip(self.total, old, strict=True)]
+            if self._pops_to_exact:
+                self._pops_to_exact -= 1
+                if not self._pops_to_exact:
+                    self.total = [math.fsum(column) for column in zip(*(v for _, v in samples), strict=True)]
+
+    def mean(self) -> list[float] | None:
+        """The mean vector, or None while the window spans less than half its length."""
+        samples = self.samples
+        if self.total is None or len(samples) < 2 or samples[-1][0] - samples[0][0] < self.half_s:
+            return None
+        n = len(samples)
+        return [s / n for s in self.total]
 
     def mean_norm(self) -> float | None:
         """|mean vector|, or None while the window spans less than half its length."""
-        if self.total is None or len(self.samples) < 2:
-            return None
-        if self.samples[-1][0] - self.samples[0][0] < 0.5 * self.window_s:
-            return None
-        n = len(self.samples)
-        if max(map(abs, self.total)) > 1e150 * n:  # |mean|² would overflow (fuzzed input): what it gave, unwarned
-            return math.inf
-        mean = np.array(self.total) / n
-        return math.sqrt(float(mean.dot(mean)))  # what np.linalg.norm computes, without its overhead
+        return _norm(self.mean())
+
+
+def _norm(mean: list[float] | None) -> float | None:
+    """|mean| of :meth:`_GravityWindow.mean`, None for None."""
+    if mean is None:
+        return None
+    if max(map(abs, mean)) > 1e150:  # |mean|² would overflow (fuzzed input): what it gave, unwarned
+        return math.inf
+    vector = np.array(mean)
+    return math.sqrt(float(vector.dot(vector)))  # what np.linalg.norm computes, without its overhead
 
 
 class InputGuard:
@@ -342,6 +390,13 @@ class InputGuard:
         inputs: the adapter's input TopicSpecs (expected frame, fields, covariances,
             gravity fields).
         values: validated parameter values holding the ``input.*`` parameters.
+
+    Attributes:
+        gravity_judged: every accelerometer's window has been judged plausible and
+            holds that verdict (True without accelerometer checks). While False, input
+            that may later be found bad can reach the estimator: runners tell the
+            adapter before each message (``inputs_judged``), and no estimate made
+            meanwhile may claim to have converged.
     """
 
     def __init__(self, inputs: Sequence[Any], values: Mapping[str, ParamValue]) -> None:
@@ -349,6 +404,10 @@ class InputGuard:
         self.max_future_s = float(values["input.max_future_stamp"])
         self.gravity_tolerance = float(values["input.gravity_tolerance"])
         self.gravity_window_s = float(values["input.gravity_window"])
+        self.max_acceleration_g = float(values["input.max_acceleration"])
+        self.max_acceleration = self.max_acceleration_g * STANDARD_GRAVITY
+        self.max_tilt_deg = float(values["input.gravity_max_tilt"])
+        self.min_cos_tilt = math.cos(math.radians(self.max_tilt_deg))
         self.rebase_after = int(values["input.restart_after_out_of_order"])
         self.rejected: dict[str, int] = {}
         self.accepted = 0
@@ -367,6 +426,7 @@ class InputGuard:
             for key, spec in self.inputs.items()
             if spec.gravity_fields and self.gravity_window_s > 0.0
         }
+        self.gravity_judged = not self._gravity
 
     def check(self, key: str, msg: Any, now_s: float | None) -> Rejection | None:
         """None when ``msg`` may reach the adapter, else why not (counted).
@@ -431,45 +491,74 @@ class InputGuard:
                 return Rejection(topic, path, problem[0], problem[1])
             if raw is not None:
                 self._usable_covariance[(key, path)] = raw
-        window = self._gravity.get(key)
-        if window is not None:
+        if plan.gravity_fields:  # an accelerometer: its specific force
             vector = tuple(float(v) for v in values[len(spec.fields) :])
-            rejection = self._check_gravity(spec, window, stamp_s, vector)
+            rejection = self._check_specific_force(key, spec, plan, stamp_s, vector)
             if rejection is not None:
                 self._last_stamp_ns[key] = stamp_ns  # the stream's order is still followed
                 return rejection
         self._last_stamp_ns[key] = stamp_ns
         return None
 
-    def _check_gravity(
-        self, spec: Any, window: _GravityWindow, t: float, vector: tuple[float, ...]
+    def _check_specific_force(
+        self, key: str, spec: Any, plan: _InputPlan, t: float, vector: tuple[float, ...]
     ) -> Rejection | None:
-        window.add(t, vector)
-        norm = window.mean_norm()
-        if norm is None:
+        """The sample's bound, then (with a window) its window's mean: magnitude and direction."""
+        limit = self.max_acceleration
+        if not -limit <= min(vector) <= max(vector) <= limit:
+            index = max(range(len(vector)), key=lambda i: abs(vector[i]))
+            return Rejection(
+                spec.topic,
+                plan.gravity_fields[index],
+                _fmt(vector[index]),
+                f"is beyond input.max_acceleration = {self.max_acceleration_g:g} g: "
+                "no vehicle accelerometer reads that (a glitch)",
+            )
+        window = self._gravity.get(key)
+        if window is None:
             return None
+        window.add(t, vector)
+        mean = window.mean()
+        if mean is None:
+            if window.verdict is not None:  # a gap emptied the window: to be judged again
+                self._set_verdict(window, None)
+            return None
+        norm = _norm(mean)
+        assert norm is not None
         g = float(spec.gravity)
         tol = self.gravity_tolerance
         if abs(norm - g) <= tol * g:
-            window.bad = False
-            return None
-        if abs(norm - g / STANDARD_GRAVITY) <= tol * g / STANDARD_GRAVITY:
-            problem = "is in g, not m/s^2"
-        elif norm < g:
-            problem = "lacks gravity (REP 145: specific force, gravity included)"
+            z = plan.z_index
+            if z is None or mean[z] > self.min_cos_tilt * norm:
+                if not window.verdict:
+                    self._set_verdict(window, True)
+                return None
+            tilt = math.degrees(math.acos(max(-1.0, min(1.0, mean[z] / norm))))
+            components = ", ".join(f"{m:.4g}" for m in mean)
+            value = f"mean a ({components}) m/s^2 over {self.gravity_window_s:g} s: {tilt:.0f} deg from +z"
+            if mean[z] <= 0.0:
+                problem = "points down: IMU mounted upside down or z axis flipped (REP 103: z up)"
+            else:
+                problem = (
+                    f"is tilted more than input.gravity_max_tilt = {self.max_tilt_deg:g} deg from +z: "
+                    "IMU mounted on its side or axes swapped (REP 103: z up)"
+                )
         else:
-            problem = "is not a specific force in m/s^2"
-        fields = ", ".join(p.rsplit(".", 1)[-1] for p in spec.gravity_fields)
-        prefix = spec.gravity_fields[0].rsplit(".", 1)[0]
-        first = not window.bad
-        window.bad = True
-        return Rejection(
-            spec.topic,
-            f"{prefix} ({fields})",
-            f"mean |a| {norm:.4g} m/s^2 over {self.gravity_window_s:g} s, expected {g:.4g} +- {100 * tol:g} %",
-            problem,
-            restart=first,
-        )
+            value = f"mean |a| {norm:.4g} m/s^2 over {self.gravity_window_s:g} s, expected {g:.4g} +- {100 * tol:g} %"
+            if abs(norm - g / STANDARD_GRAVITY) <= tol * g / STANDARD_GRAVITY:
+                problem = "is in g, not m/s^2"
+            elif norm < g:
+                problem = "lacks gravity (REP 145: specific force, gravity included)"
+            else:
+                problem = "is not a specific force in m/s^2"
+        first = window.verdict is not False
+        if first:
+            self._set_verdict(window, False)
+        return Rejection(spec.topic, plan.gravity_label, value, problem, restart=first)
+
+    def _set_verdict(self, window: _GravityWindow, verdict: bool | None) -> None:
+        window.verdict = verdict
+        self.gravity_judged = all(w.verdict for w in self._gravity.values())
 
 
 class _InputPlan:
@@ -479,6 +568,11 @@ class _InputPlan:
         self.spec = spec
         self.fields = tuple((p, _path_getter(p)) for p in (*spec.fields, *spec.gravity_fields))
         self.covariances = tuple((p, _path_getter(p)) for p in spec.covariances)
+        self.gravity_fields: tuple[str, ...] = tuple(spec.gravity_fields)
+        names = [p.rsplit(".", 1)[-1] for p in self.gravity_fields]
+        self.z_index = names.index("z") if "z" in names else None  # REP 103: the up axis, when checked
+        prefix = self.gravity_fields[0].rsplit(".", 1)[0] if self.gravity_fields else ""
+        self.gravity_label = f"{prefix} ({', '.join(names)})"
 
 
 def _covariance_problem(cov: np.ndarray) -> tuple[str, str] | None:
