@@ -10,12 +10,16 @@ over the bag once: its final k_s starts the replay's ln k_s and its NIS
 (against the χ² band, with whiteness) is reported with the rest.
 
 Only the bag and the vehicle's config are read: nothing of how the bag was made.
+The bag's inputs are checked first (:mod:`~terrain_estimation.sim2real.inputs`:
+the estimators' input checks, plausibility bounds, time gaps); the replay and
+the estimator read only the messages that pass, of one gap-free segment.
 """
 
 from __future__ import annotations
 
 import importlib
 import math
+import tempfile
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
@@ -27,6 +31,7 @@ from numpy.typing import NDArray
 from scipy import stats
 
 from terrain_estimation.sim2real.attribution import AttributionReport, AttributionSettings, attribute
+from terrain_estimation.sim2real.inputs import GAP_MIN_S, InputReport, screen_bag
 from terrain_estimation.sim2real.model import ReplayModel, usable_mask
 from terrain_estimation.sim2real.where import (
     ChannelReport,
@@ -95,6 +100,7 @@ class Diagnosis:
     seconds: float
     notes: list[str] = field(default_factory=list)
     model: ReplayModel | None = field(default=None, repr=False)
+    inputs: InputReport | None = None
 
     @property
     def verdict(self) -> str:
@@ -112,6 +118,7 @@ class Diagnosis:
                 "attribution": self.attribution.to_dict(),
                 "seconds": self.seconds,
                 "notes": self.notes,
+                "inputs": asdict(self.inputs) if self.inputs is not None else None,
             }
         )
 
@@ -230,19 +237,69 @@ def diagnose(
     config: str | Path | None = None,
     settings: AttributionSettings | None = None,
     progress: Callable[[str], None] | None = None,
+    segment: int | None = None,
+    min_gap: float = GAP_MIN_S,
 ) -> Diagnosis:
     """Where the gap lies, which catalogue effect explains it and how far it shrinks, for one bag.
 
-    Raises:
-        Sim2RealError: unsupported vehicle, missing topic, too little data.
-        BagError: unreadable bag.
-    """
-    settings = settings or AttributionSettings()
-    started = time.perf_counter()
+    The inputs are checked first (:func:`~terrain_estimation.sim2real.inputs.screen_bag`);
+    ``segment`` (1-based) and ``min_gap`` (s) choose the gap-free stretch analysed.
 
-    def say(text: str) -> None:
-        if progress is not None:
-            progress(text)
+    Raises:
+        Sim2RealError: unsupported vehicle, no usable input, too little data.
+        BagError: unreadable bag, a missing input topic or one of another type.
+    """
+    if vehicle not in BUILDERS:
+        raise Sim2RealError(f"no sim-to-real replay model for vehicle {vehicle!r}; known: {', '.join(BUILDERS)}")
+    started = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="sim2real-") as scratch:
+        screened = Path(scratch) / "checked"
+        inputs = screen_bag(
+            bag,
+            vehicle,
+            screened,
+            namespace=namespace,
+            config=config,
+            segment=segment,
+            min_gap=min_gap,
+            progress=progress,
+        )
+        where = f"segment {inputs.analysed + 1} of {len(inputs.segments)}" if len(inputs.segments) > 1 else ""
+
+        def said(text: str) -> None:  # the scratch bag is named as the bag it came from
+            if progress is not None:
+                progress(text.replace(str(screened), f"{bag}" + (f" ({where})" if where else "")))
+
+        try:
+            result = _diagnose(screened, vehicle, namespace, config, settings or AttributionSettings(), said)
+        except ValueError as exc:  # Sim2RealError, or the engine's "too little data": say what the checks left
+            raise Sim2RealError(
+                f"{str(exc).replace(str(screened), str(bag))}; after the input checks, {inputs.summary()}"
+            ) from exc
+    result.bag, result.inputs, result.seconds = str(bag), inputs, time.perf_counter() - started
+    if where:
+        result.notes.insert(
+            0,
+            f"the bag has time gaps: {where} analysed ({inputs.why}; "
+            + "; ".join(f"{i + 1}: {s}" for i, s in enumerate(inputs.segments))
+            + "); choose another with --segment",
+        )
+    if inputs.rejected:
+        result.notes.insert(0, f"{sum(inputs.rejected.values())} input messages rejected by the input checks")
+    return result
+
+
+def _diagnose(
+    bag: Path,
+    vehicle: str,
+    namespace: str | None,
+    config: str | Path | None,
+    settings: AttributionSettings,
+    progress: Callable[[str], None],
+) -> Diagnosis:
+    """:func:`diagnose` on a bag whose inputs passed the checks."""
+    started = time.perf_counter()
+    say = progress
 
     nis: NisReport | None = None
     notes: list[str] = []

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from terrain_estimation.sim2real.attribution import FittedModel
 from terrain_estimation.sim2real.diagnose import Diagnosis
+from terrain_estimation.sim2real.inputs import InputReport
 from terrain_estimation.sim2real.where import WhereReport
 
 __all__ = ["diagnosis_markdown", "markdown", "write_diagnosis", "write_report"]
@@ -172,6 +173,26 @@ def _fmt_params(m: FittedModel) -> str:
     return "; ".join(parts)
 
 
+def _inputs_markdown(r: InputReport | None) -> list[str]:
+    """The "Input checks" section: counts per topic, rejections per reason, segments, the rules."""
+    if r is None:
+        return []
+    lines = ["## Input checks", "", r.summary() + ".", "", "| topic | type | read | used | left out (other segments) |"]
+    lines.append("|---|---|---|---|---|")
+    for topic, msgtype in r.expected.items():
+        lines.append(
+            f"| {topic} | {msgtype} | {r.read.get(topic, 0)} | {r.used.get(topic, 0)} | {r.outside.get(topic, 0)} |"
+        )
+    if r.rejected:
+        lines += ["", "| rejected | reason |", "|---|---|"]
+        lines += [f"| {n} | {reason} |" for reason, n in sorted(r.rejected.items(), key=lambda kv: (-kv[1], kv[0]))]
+    if len(r.segments) > 1:
+        lines += ["", f"The bag has time gaps; segment {r.analysed + 1} was analysed ({r.why}):", ""]
+        lines += [f"{i + 1}. {seg}{' **(analysed)**' if i == r.analysed else ''}" for i, seg in enumerate(r.segments)]
+    lines += ["", "Checks: " + "; ".join(r.rules) + ".", ""]
+    return lines
+
+
 def diagnosis_markdown(d: Diagnosis) -> str:
     """The full diagnosis as Markdown (a person reads the top in a minute)."""
     a = d.attribution
@@ -186,6 +207,7 @@ def diagnosis_markdown(d: Diagnosis) -> str:
         f"Fitted on {a.train_samples} samples, scored on {a.test_samples} held-out samples "
         f"(every {a.settings.test_every}rd block of {a.settings.block:g} s after a warm-up, never fitted to).",
         "",
+        *_inputs_markdown(d.inputs),
         "## Which effect, and how far the gap shrinks (held-out data)",
         "",
         "Gap = mean normalised residual power above the noise budget, (mean r² − 1), r = residual/σ. "
