@@ -15,6 +15,8 @@ code  name                   meaning
                              output path that would destroy data; nothing was written
 3     ``EXIT_INTERNAL``      an internal error (a bug): the traceback is printed
 130   ``EXIT_INTERRUPTED``   Ctrl-C; nothing half-written is left behind
+141   ``EXIT_BROKEN_PIPE``   whoever read the output stopped reading (``| head``): quietly, as
+                             a shell command killed by SIGPIPE
 ====  =====================  ==============================================================
 
 :func:`run_cli` maps exceptions to these statuses, so that each tool's
@@ -35,6 +37,7 @@ __all__ = [
     "EXIT_INPUT",
     "EXIT_INTERNAL",
     "EXIT_INTERRUPTED",
+    "EXIT_BROKEN_PIPE",
     "InputError",
     "cli_main",
     "input_errors",
@@ -46,6 +49,7 @@ EXIT_FINDING = 1
 EXIT_INPUT = 2
 EXIT_INTERNAL = 3
 EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 141
 
 
 class InputError(ValueError):
@@ -76,6 +80,14 @@ def run_cli(prog: str, body: Callable[[], int], *, interrupted: str = "interrupt
     except KeyboardInterrupt:
         print(f"{prog}: {interrupted}", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # stdout's reader has gone: point stdout at nothing so that the interpreter's final flush is quiet too
+        import contextlib
+        import os
+
+        with contextlib.suppress(OSError, ValueError):  # not a real file (captured): nothing to flush
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     except Exception:  # a bug: say so, with the traceback, and never exit 1 (a "finding")
         traceback.print_exc()
         print(f"{prog}: internal error (a bug: please report it with the traceback above)", file=sys.stderr)

@@ -6,9 +6,16 @@ them), and writes the estimates to a new bag, atomically. The estimates are
 identical to those of the live node fed the same messages: both go through
 the same adapter (tested in ``test/test_live_offline.py``).
 
-A summary goes to stdout: messages read and written, the last estimate, and,
-when the bag carries ``ground_truth/<topic>`` for an estimate topic (a
-simulator's bag), the error of every numeric field against it.
+A summary goes to stdout: messages read, rejected (by reason) and written, the
+last estimate, and, when the bag carries ``ground_truth/<topic>`` for an
+estimate topic (a simulator's bag), the error of every numeric field against it.
+
+Exit status (``terrain_estimation.cli``): 0 estimates written; 2 the input
+cannot be used — nothing is written: a missing or corrupt bag, a topic recorded
+with another message type than the contract's, no input topic of the vehicle in
+the bag (a wrong ``--namespace``), no estimate at all (every input rejected, or
+a required topic missing), a bad parameter, an output path that exists (see
+``--overwrite``); 3 an internal error.
 """
 
 from __future__ import annotations
@@ -24,12 +31,20 @@ from typing import Any
 
 import numpy as np
 
-from terrain_estimation.bag import AtomicBagWriter, BagError, read_bag
-from terrain_estimation.params import ParameterError
+from terrain_estimation.bag import AtomicBagWriter, bag_contents, read_bag
+from terrain_estimation.cli import EXIT_OK, InputError, run_cli
+from terrain_estimation.outputs import check_output_path
+from terrain_estimation.params import parse_override
+from terrain_estimation.ros.framework import JudgedInputs
 from terrain_estimation.ros.validation import InputGuard, first_nonfinite
 from terrain_estimation.vehicles import VEHICLES, estimator_parameters, get_vehicle
 
 __all__ = ["EstimationRun", "estimate_bag", "run_adapter", "main", "numeric_fields", "topic_name"]
+
+
+def msgtype_name(cls: type) -> str:
+    """``pkg/msg/Name`` of an rclpy message class (``sensor_msgs.msg._imu.Imu`` -> ``sensor_msgs/msg/Imu``)."""
+    return f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
 
 
 def topic_name(namespace: str, relative: str) -> str:
@@ -73,6 +88,9 @@ class EstimationRun:
     truth: dict[str, list[Any]] = field(default_factory=dict)  # estimate topic -> truth messages
     truth_fields: dict[str, tuple[str, ...]] = field(default_factory=dict)  # estimate topic -> compared fields
     rejected: dict[str, int] = field(default_factory=dict)  # input check reason -> messages dropped
+    accepted: int = 0  # input messages that passed the checks (or all read, without checks)
+    expected_topics: dict[str, str] = field(default_factory=dict)  # absolute input topic -> pkg/msg/Name
+    topics_read: dict[str, int] = field(default_factory=dict)  # absolute input topic -> messages read
     restarts: int = 0  # estimator restarts asked by the input checks
     outputs_dropped: dict[str, int] = field(default_factory=dict)  # non-finite estimates never written
 
@@ -104,15 +122,31 @@ def run_adapter(
     truth_topics = {
         topic_name(namespace, "ground_truth/" + s.topic): topic_name(namespace, s.topic) for s in adapter.outputs
     }
-    run = EstimationRun(truth_fields={outputs[s.key]: s.truth_fields for s in adapter.outputs})
+    types = {topic_name(namespace, s.topic): msgtype_name(s.msg_type) for s in adapter.inputs}
+    run = EstimationRun(
+        truth_fields={outputs[s.key]: s.truth_fields for s in adapter.outputs}, expected_topics=dict(types)
+    )
+    for s in adapter.outputs:
+        types[topic_name(namespace, "ground_truth/" + s.topic)] = msgtype_name(s.msg_type)
     guard = InputGuard(adapter.inputs, values) if values is not None else None
+    judged = isinstance(adapter, JudgedInputs)
+
+    def undecodable(topic: str, _log_time_ns: int, exc: BaseException) -> None:
+        # as the live node does: the sample is dropped, counted, and the run goes on
+        if topic in inputs:
+            run.inputs_read += 1
+            run.topics_read[topic] = run.topics_read.get(topic, 0) + 1
+        reason = f"{topic}: bytes do not decode as {types.get(topic, 'its type')}"
+        run.rejected[reason] = run.rejected.get(reason, 0) + 1
+
     started = time.monotonic()
     last_report = started
-    for item in read_bag(bag, list(inputs) + list(truth_topics)):
+    for item in read_bag(bag, list(inputs) + list(truth_topics), types=types, on_undecodable=undecodable):
         if item.topic in truth_topics:
             run.truth.setdefault(truth_topics[item.topic], []).append(item.msg)
             continue
         run.inputs_read += 1
+        run.topics_read[item.topic] = run.topics_read.get(item.topic, 0) + 1
         key_in = inputs[item.topic]
         if guard is not None:
             rejection = guard.check(key_in, item.msg, item.log_time_ns * 1e-9)
@@ -122,6 +156,9 @@ def run_adapter(
                     run.restarts += 1
                     adapter.reset()
                 continue
+            if judged:  # estimates made before the gravity check has judged every accelerometer are not converged
+                adapter.inputs_judged = guard.gravity_judged
+        run.accepted += 1
         for key, out in adapter.handle(key_in, item.msg):
             bad = first_nonfinite(out)
             if bad is not None:
@@ -193,10 +230,42 @@ def truth_errors(
     }
 
 
+def check_usable(run: EstimationRun, bag: str | Path, namespace: str) -> None:
+    """Raise :class:`~terrain_estimation.cli.InputError` when ``run`` estimated nothing, saying why.
+
+    The message names the input topics the vehicle expects (with their types),
+    which of them the bag holds, and what else it holds, so that a wrong
+    ``--namespace``, a bag of another vehicle or a topic missing is seen at once;
+    when inputs were read but every one was rejected, the reasons come with it.
+    """
+    if run.outputs:
+        return
+    expected = ", ".join(f"{t} ({m})" for t, m in run.expected_topics.items())
+    if run.inputs_read == 0:
+        found = [str(t) for t in bag_contents(bag).values() if t.count > 0]
+        shown = ", ".join(found[:20]) + (f", … {len(found) - 20} more" if len(found) > 20 else "")
+        raise InputError(
+            f"no input message in {str(bag)!r} under namespace {namespace!r}: expected {expected}; "
+            f"the bag holds {shown or 'no message at all'}"
+        )
+    missing = [t for t in run.expected_topics if not run.topics_read.get(t)]
+    why = [f"{count} rejected: {reason}" for reason, count in sorted(run.rejected.items(), key=lambda kv: -kv[1])]
+    if missing:
+        why.insert(0, f"topics absent from the bag: {', '.join(missing)}")
+    raise InputError(
+        f"no estimate from {run.inputs_read} input messages of {str(bag)!r} "
+        f"({run.accepted} accepted): " + ("; ".join(why[:8]) or "the estimator produced nothing")
+    )
+
+
 def _summary_lines(run: EstimationRun) -> Iterator[str]:
-    yield f"input messages read: {run.inputs_read}"
+    rejected = sum(run.rejected.values())
+    yield f"input messages read: {run.inputs_read} ({run.accepted} accepted, {rejected} rejected)"
     for reason, count in sorted(run.rejected.items()):
         yield f"  rejected {count}: {reason}"
+    missing = [t for t in run.expected_topics if not run.topics_read.get(t)]
+    if missing:
+        yield f"  topics absent from the bag: {', '.join(missing)}"
     if run.restarts:
         yield f"  estimator restarted {run.restarts} time(s) by the input checks"
     for reason, count in sorted(run.outputs_dropped.items()):
@@ -216,47 +285,45 @@ def _summary_lines(run: EstimationRun) -> Iterator[str]:
 
 
 def _parse_overrides(items: Sequence[str]) -> dict[str, Any]:
-    import yaml
-
-    out: dict[str, Any] = {}
-    for item in items:
-        name, sep, text = item.partition("=")
-        if not sep:
-            raise ParameterError(f"--param {item!r}: expected NAME=VALUE")
-        out[name.strip()] = yaml.safe_load(text)
-    return out
+    """``--param NAME=VALUE`` items as ``{name: value}`` (values parsed as YAML, bounded: :func:`parse_override`)."""
+    return dict(parse_override(item) for item in items)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="terrain-estimate",
         description="Run a vehicle's estimator over a recorded rosbag2 bag and write the estimates to a new bag.",
+        epilog="Exit status: 0 estimates written, 2 the input cannot be used (nothing written), 3 internal error.",
     )
     parser.add_argument("bag", help="input bag directory (mcap or sqlite3)")
     parser.add_argument("--vehicle", required=True, choices=sorted(VEHICLES), help="vehicle model")
-    parser.add_argument("-o", "--output", required=True, help="output bag directory (replaced atomically)")
+    parser.add_argument("-o", "--output", required=True, help="output bag directory (must not exist; see --overwrite)")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace the output if it is a previous bag (never the input)"
+    )
     parser.add_argument("--namespace", help="namespace the bag was recorded under (default: the vehicle's)")
     parser.add_argument("--config", help="parameter file (default: config/<vehicle>.yaml)")
     parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="override a parameter")
     args = parser.parse_args(argv)
-    try:
+
+    def body() -> int:
         overrides = _parse_overrides(args.param)
+        # refused before the run, not after minutes of it
+        check_output_path(args.output, overwrite=args.overwrite, inputs=[args.bag])
         print(f"estimating {args.bag} as {args.vehicle} ...", file=sys.stderr)
+        namespace = args.namespace if args.namespace is not None else get_vehicle(args.vehicle).namespace
         run = estimate_bag(
-            args.bag, args.vehicle, namespace=args.namespace, config=args.config, overrides=overrides, progress=True
+            args.bag, args.vehicle, namespace=namespace, config=args.config, overrides=overrides, progress=True
         )
-        with AtomicBagWriter(args.output) as writer:
+        for line in _summary_lines(run):
+            print(line)
+        check_usable(run, args.bag, namespace)
+        with AtomicBagWriter(args.output, overwrite=args.overwrite, inputs=[args.bag]) as writer:
             writer.write_all(run.outputs)
-    except (BagError, ParameterError, ValueError) as exc:
-        print(f"terrain-estimate: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("terrain-estimate: interrupted; no output bag written", file=sys.stderr)
-        return 130
-    for line in _summary_lines(run):
-        print(line)
-    print(f"wrote {len(run.outputs)} messages to {args.output}")
-    return 0
+        print(f"wrote {len(run.outputs)} messages to {args.output}")
+        return EXIT_OK
+
+    return run_cli("terrain-estimate", body, interrupted="interrupted; no output bag written")
 
 
 if __name__ == "__main__":
