@@ -51,7 +51,7 @@ $(PKGS_STAMP): $(MSGS_STAMP) src/terrain_estimation/pyproject.toml src/vehicle_s
 	@echo "setup complete: $(VENV)"
 
 demo: setup
-	$(PY) -m terrain_estimation.tools.demo --out out
+	$(PY) -m terrain_estimation.tools.demo --out out/demo
 
 lint: setup
 	$(PY) -m ruff check src test
@@ -111,7 +111,7 @@ sim2real-real-data: setup
 	else echo "sim2real-real-data: $(REAL_DATA)/cmu_single_wheel not found, CMU rig skipped"; fi
 	@if [ -d "$(REAL_DATA)/borealtc" ]; then \
 		$(PY) -m terrain_estimation.sim2real.husky --data $(REAL_DATA)/borealtc --out docs/results/sim2real/husky \
-			--bags out/husky_bags; \
+			--bags out/husky_bags --overwrite; \
 	else echo "sim2real-real-data: $(REAL_DATA)/borealtc not found, Husky runs skipped"; fi
 	$(PY) -m terrain_estimation.tools.sim2real_results
 
@@ -129,26 +129,26 @@ distclean: clean
 # The recorded bags under bags/ (small: seconds of driving). Each is made by
 # terrain-simulate from config/<vehicle>.yaml plus the overrides named here.
 bags: setup
-	$(PY) -m vehicle_sim.tools.simulate --vehicle quarter_car --duration 4 -o bags/quarter_car_graneville_iso_d_10ms \
+	$(PY) -m vehicle_sim.tools.simulate --overwrite --vehicle quarter_car --duration 4 -o bags/quarter_car_graneville_iso_d_10ms \
 		--param scenario.road=D --param scenario.road_seed=11 --param seed=12
-	$(PY) -m vehicle_sim.tools.simulate --vehicle lrv --duration 4 -o bags/lrv_regolith_iso_g_2ms \
+	$(PY) -m vehicle_sim.tools.simulate --overwrite --vehicle lrv --duration 4 -o bags/lrv_regolith_iso_g_2ms \
 		--param scenario.road=G --param scenario.road_seed=21 --param seed=22 --param scenario.speed=2.0 \
 		--param 'scenario.soils=[lunar_regolith]'
-	$(PY) -m vehicle_sim.tools.simulate --vehicle skid_steer --duration 12 -o bags/skid_steer_straight_acceleration \
+	$(PY) -m vehicle_sim.tools.simulate --overwrite --vehicle skid_steer --duration 12 -o bags/skid_steer_straight_acceleration \
 		--param scenario.manoeuvre=straight_acceleration --param seed=31
-	$(PY) -m vehicle_sim.tools.simulate --vehicle skid_steer --duration 14 -o bags/skid_steer_small_radius_turn \
+	$(PY) -m vehicle_sim.tools.simulate --overwrite --vehicle skid_steer --duration 14 -o bags/skid_steer_small_radius_turn \
 		--param scenario.manoeuvre=small_radius_turn --param seed=32
-	$(PY) -m vehicle_sim.tools.simulate --vehicle skid_steer --duration 10 -o bags/skid_steer_s_shape \
+	$(PY) -m vehicle_sim.tools.simulate --overwrite --vehicle skid_steer --duration 10 -o bags/skid_steer_s_shape \
 		--param scenario.manoeuvre=s_shape --param seed=33
-	$(PY) -m vehicle_sim.tools.simulate --vehicle rover --duration 30 -o bags/rover_terrain_1 \
+	$(PY) -m vehicle_sim.tools.simulate --overwrite --vehicle rover --duration 30 -o bags/rover_terrain_1 \
 		--param scenario.terrain=rolling --param seed=51
-	$(PY) -m vehicle_sim.tools.simulate --vehicle rover --duration 24 -o bags/rover_terrain_2 \
+	$(PY) -m vehicle_sim.tools.simulate --overwrite --vehicle rover --duration 24 -o bags/rover_terrain_2 \
 		--param scenario.terrain=uphill --param scenario.start_x=0.3 --param seed=52
-	$(PY) -m vehicle_sim.tools.simulate --vehicle rover --duration 24 -o bags/rover_terrain_3 \
+	$(PY) -m vehicle_sim.tools.simulate --overwrite --vehicle rover --duration 24 -o bags/rover_terrain_3 \
 		--param scenario.terrain=downhill --param scenario.start_x=0.3 --param seed=53
-	$(PY) -m vehicle_sim.tools.simulate --vehicle rover --duration 24 -o bags/rover_terrain_4 \
+	$(PY) -m vehicle_sim.tools.simulate --overwrite --vehicle rover --duration 24 -o bags/rover_terrain_4 \
 		--param scenario.terrain=step_wide --param scenario.start_x=0.1 --param seed=54
-	$(PY) -m vehicle_sim.tools.simulate --vehicle rover --duration 24 -o bags/rover_terrain_5 \
+	$(PY) -m vehicle_sim.tools.simulate --overwrite --vehicle rover --duration 24 -o bags/rover_terrain_5 \
 		--param scenario.terrain=step_medium --param scenario.start_x=0.1 --param seed=55
-	$(PY) -m vehicle_sim.tools.simulate --vehicle rover --duration 24 -o bags/rover_terrain_6 \
+	$(PY) -m vehicle_sim.tools.simulate --overwrite --vehicle rover --duration 24 -o bags/rover_terrain_6 \
 		--param scenario.terrain=step_sharp --param scenario.start_x=0.1 --param seed=56

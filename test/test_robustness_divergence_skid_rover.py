@@ -120,10 +120,15 @@ def test_skid_steer_node_divergence_is_an_error_then_ok(rclpy_context: Any) -> N
     assert node.adapter.estimator.fault is None
 
 
-def test_skid_steer_node_without_the_monitor_raises_no_error(rclpy_context: Any) -> None:
+def test_skid_steer_node_without_the_monitor_is_still_held_to_the_vehicle_limits(rclpy_context: Any) -> None:
+    """The NIS monitor off, the gyro fault still drives the yaw rate past vehicle.max_yaw_rate: an ERROR, a restart."""
     outputs, levels, node = _node_run(rclpy_context, "skid_steer", 0, 8.0, SKID_FAULT)
     assert all(all_finite(m) for m in outputs)
-    assert _error_span(levels) is None and node.adapter.estimator.counters.divergences == 0
+    span = _error_span(levels)
+    assert span is not None, "an estimate beyond the vehicle's limits must be an error"
+    limit = float(node.values["vehicle.max_yaw_rate"])
+    assert all(abs(m.twist.twist.angular.z) <= limit for m in outputs if hasattr(m, "twist")), "published beyond limit"
+    assert node.adapter.estimator.counters.divergences >= 1
 
 
 def test_rover_node_divergence_is_an_error_then_ok(rclpy_context: Any) -> None:

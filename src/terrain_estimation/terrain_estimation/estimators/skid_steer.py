@@ -70,6 +70,32 @@ variance): the mean NIS is 0.13–0.26 against 3 on the shipped bags
 it off. With it off the monitor never fired on those bags (three
 variants; ``window`` 20, ``probability`` 0.999, ``persistence`` 10).
 
+**Physical limits (issue 19).** No estimate leaves the vehicle's envelope
+``max_speed`` (planar speed ``√(vx² + vy²)``, m/s) and ``max_yaw_rate``
+(``|r|``, rad/s). A step whose posterior mean lies beyond it is a divergence
+(``counters.limit_resets`` and ``counters.divergences``): the filter restarts
+from the wheel odometry and the gyro, not from the bad state (``vx`` = the
+encoder speed, ``vy = 0``, ``r`` = the measured yaw rate, each clipped to the
+envelope; covariance ``diag(p0_diag)``), that restart is the estimate of the
+step (``initialised``), and :attr:`SkidSteerEstimator.fault` names the limit
+for ``fault_hold_s`` of stamps after the last one. The runaway this stops
+(BorealTC Husky, deep snow and bumps; found by comparing the variants): when the
+brush forces of the state saturate (slip velocities beyond ``≈ 3 μ F_z V_r / C``,
+0.1 m/s at 0.5 m/s wheel speed on the Husky), ``h`` no longer depends on the
+speed's magnitude; accelerations the tires cannot produce (bumps of 2–6 g,
+sides spinning against a body that does not turn) then keep the innovation
+large, the strong-tracking fading factor sits at ``λ_max`` step after step and
+multiplies the covariance by it each time (10ᵏ), and the update moves the
+mean by about its standard deviation: ``|v|`` grows by ≈ √10 per step to
+1e155 m/s (the plain UKF, whose covariance grows only by Q, stays bounded).
+The mean moves by about √P per step, so the check on the mean also bounds the
+covariance (each reset restores ``p0_diag``). The cause is in the tuning for
+such data: ``config/husky.yaml`` sets the measured IMU noise and
+``lambda_max`` 2 and runs the 21 BorealTC runs without a reset. The
+NIS-band monitor (``divergence``) is no guard there: the bumps' heavy tails put
+the windowed mean NIS above its band on every run (23–376 "divergences" per
+run), which is why it stays off by default.
+
 **Outputs.** :meth:`~SkidSteerEstimator.add_imu` returns the estimate its
 step produced (None if none); every estimate also goes to an outbox read
 by :meth:`~SkidSteerEstimator.drain_estimates`. The body sideslip variance
@@ -168,6 +194,13 @@ class SkidSteerEstimatorConfig:
             module docstring); None (default) keeps only the recovery from a
             failed or non-finite step. ``check_low`` must be False for
             ``"an_stukf"``.
+        max_speed: the vehicle's planar speed limit (m/s): an estimate beyond
+            it is a divergence (module docstring). Default 20 m/s: [SS]'s 3 t vehicle runs its
+            manoeuvres at up to 30 km/h (8.3 m/s).
+        max_yaw_rate: the vehicle's yaw-rate limit (rad/s), the same for ``r``.
+            Default 3 rad/s.
+        fault_hold_s: :attr:`SkidSteerEstimator.fault` names a limit reset for
+            this long after it (s of stamps; the diagnostics period is 1 s).
     """
 
     vehicle: SkidSteerParams = field(default_factory=SkidSteerParams)
@@ -194,11 +227,22 @@ class SkidSteerEstimatorConfig:
     initial_state: tuple[float, float, float] | None = None
     p0_diag: tuple[float, float, float] = (0.3**2, 0.2**2, 0.02**2)
     divergence: DivergenceConfig | None = None
+    max_speed: float = 20.0
+    max_yaw_rate: float = 3.0
+    fault_hold_s: float = 1.0
 
     def __post_init__(self) -> None:
         if self.filter not in VARIANTS:
             raise ValueError(f"filter must be one of {VARIANTS}, got {self.filter!r}")
-        positive = ("accel_cutoff_hz", "max_wheel_speed_age_s", "max_step_s", "q_step_dt")
+        positive = (
+            "accel_cutoff_hz",
+            "max_wheel_speed_age_s",
+            "max_step_s",
+            "q_step_dt",
+            "max_speed",
+            "max_yaw_rate",
+            "fault_hold_s",
+        )
         for name in positive:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
@@ -325,6 +369,7 @@ class SkidSteerCounters:
     restarts: int = 0
     recoveries: int = 0
     divergences: int = 0
+    limit_resets: int = 0
     stale_wheel_speeds: int = 0
     no_wheel_speeds: int = 0
     imu_out_of_order: int = 0
@@ -378,6 +423,8 @@ class SkidSteerEstimator:
         self._c: dict[str, int] = dict.fromkeys(SkidSteerCounters.__dataclass_fields__, 0)
         div = self.config.divergence
         self._monitor = DivergenceMonitor(div) if div is not None else None
+        self._limit_fault: str | None = None
+        self._limit_fault_until = -math.inf
 
     @property
     def counters(self) -> SkidSteerCounters:
@@ -393,8 +440,11 @@ class SkidSteerEstimator:
     def fault(self) -> str | None:
         """Why the filter was last found diverged, until it is consistent again; None when healthy.
 
-        Always None without ``config.divergence``.
+        A limit reset for ``fault_hold_s`` after it; a fault of the divergence monitor
+        (``config.divergence``) until a new NIS window is inside its band.
         """
+        if self._limit_fault is not None:
+            return self._limit_fault
         return None if self._monitor is None else self._monitor.fault
 
     @property
@@ -463,6 +513,8 @@ class SkidSteerEstimator:
             self._c["imu_out_of_order"] += 1
             return None
         a_prev = self._lowpass(tt, z[0], z[1])
+        if self._limit_fault is not None and tt >= self._limit_fault_until:
+            self._limit_fault = None
         wheels = self._wheel_speeds_at(tt)
         if wheels is None:
             return None
@@ -513,8 +565,7 @@ class SkidSteerEstimator:
         if cfg.initial_state is not None:
             x0 = np.array(cfg.initial_state, dtype=float)
         else:
-            vx_enc, _ = encoder_kinematics(wl, wr, cfg.vehicle)
-            x0 = np.array([vx_enc, 0.0, z[2]])
+            x0 = self._odometry_state(wl, wr, float(z[2]))
         self._state = self.filter.initial_state(x0, self._p0)
         self._memory = None
         if self._monitor is not None:
@@ -548,6 +599,10 @@ class SkidSteerEstimator:
             # Non-finite model output, too many Euler sub-steps, a broken factor.
             ok = False
             failure = f"filter step failed: {exc}"
+        if ok:
+            beyond = self._beyond_limits(post.x)
+            if beyond:
+                return self._limit_reset(t, wl, wr, float(z[2]), dt, beyond)
         if self._monitor is not None:
             info = None
             if failure is None:
@@ -591,6 +646,43 @@ class SkidSteerEstimator:
             accepted=res.accepted,
             init=False,
         )
+
+    def _odometry_state(self, wl: float, wr: float, yaw_rate: float) -> Array:
+        """``[encoder speed, 0, measured yaw rate]``, clipped to the envelope (a (re)start's mean)."""
+        cfg = self.config
+        vx_enc, _ = encoder_kinematics(wl, wr, cfg.vehicle)
+        return np.array(
+            [
+                min(max(vx_enc, -cfg.max_speed), cfg.max_speed),
+                0.0,
+                min(max(yaw_rate, -cfg.max_yaw_rate), cfg.max_yaw_rate),
+            ]
+        )
+
+    def _beyond_limits(self, x: Array) -> str:
+        """Why the finite mean ``x`` is outside the vehicle's envelope, or ``""``."""
+        cfg = self.config
+        vx, vy, r = np.asarray(x, dtype=float).tolist()
+        speed = math.hypot(vx, vy)
+        if speed > cfg.max_speed:
+            return f"speed {speed:.3g} m/s beyond vehicle.max_speed {cfg.max_speed:g} m/s"
+        if abs(r) > cfg.max_yaw_rate:
+            return f"yaw rate {r:.3g} rad/s beyond vehicle.max_yaw_rate {cfg.max_yaw_rate:g} rad/s"
+        return ""
+
+    def _limit_reset(
+        self, t: float, wl: float, wr: float, yaw_rate: float, dt: float, reason: str
+    ) -> SkidSteerEstimate:
+        """Restart from the wheel odometry and the gyro after an estimate beyond the envelope."""
+        self._c["limit_resets"] += 1
+        self._c["divergences"] += 1
+        self._state = self.filter.initial_state(self._odometry_state(wl, wr, yaw_rate), self._p0)
+        self._memory = None
+        if self._monitor is not None:
+            self._monitor.start(self._state)
+        self._limit_fault = f"estimate beyond the vehicle's limits: {reason}; restarted from wheel odometry and gyro"
+        self._limit_fault_until = t + self.config.fault_hold_s
+        return self._estimate(t, wl, wr, dt, fading=1.0, scale=1.0, a_bar=0.0, nis=0.0, accepted=False, init=True)
 
     def _advance_pose(self, dt: float, vx_new: float, vy_new: float, r_new: float) -> None:
         """Trapezoidal twist, mid-step heading (exact for constant twist to O(dt³))."""

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -39,7 +40,7 @@ from terrain_estimation.estimators.skid_steer import (
 )
 from terrain_estimation.filters.adaptive import StrongTrackingConfig
 from terrain_estimation.models.skid_steer import SkidSteerParams
-from terrain_estimation.params import ParamSpec, ParamValue
+from terrain_estimation.params import ParamSpec, ParamValue, default_config_path, load_parameter_file
 from terrain_estimation.ros.framework import (
     AdapterHealth,
     TopicSpec,
@@ -62,11 +63,14 @@ __all__ = [
     "estimate_to_odom_msg",
     "make_adapter",
     "specs_for",
+    "husky_overrides",
 ]
 
 _D = SkidSteerParams()
+_EC = SkidSteerEstimatorConfig()
 
-#: The vehicle's nominal physics ([SS] Table 1, MODELS.md B.2); shared with the simulator.
+#: The vehicle's nominal physics ([SS] Table 1, MODELS.md B.2) and its limits; shared with the simulator
+#: (which declares the limits but has no use for them: ``/**`` is read by both nodes).
 VEHICLE_SPECS_SKID_STEER: tuple[ParamSpec, ...] = (
     ParamSpec("vehicle.kind", "skid_steer", "vehicle model", choices=("skid_steer",), read_only=True),
     ParamSpec("vehicle.mass", _D.mass, "[kg] vehicle mass m (Table 1)", 1.0, 1e6),
@@ -96,10 +100,26 @@ VEHICLE_SPECS_SKID_STEER: tuple[ParamSpec, ...] = (
     ),
     ParamSpec("vehicle.friction", _D.friction, "[-] tire-ground friction coefficient mu", 1e-3, 5.0),
     ParamSpec("vehicle.gravity", _D.gravity, "[m/s^2] gravity", 0.1, 30.0),
+    ParamSpec(
+        "vehicle.max_speed",
+        _EC.max_speed,
+        "[m/s] planar speed the vehicle cannot exceed: an estimate beyond it is a divergence (diagnostic ERROR, "
+        "filter restarted from wheel odometry and gyro). [SS]'s vehicle: "
+        "30 km/h manoeuvres, 20 m/s with margin",
+        0.01,
+        1000.0,
+    ),
+    ParamSpec(
+        "vehicle.max_yaw_rate",
+        _EC.max_yaw_rate,
+        "[rad/s] yaw rate the vehicle cannot exceed: an estimate beyond it is a divergence, as vehicle.max_speed",
+        0.01,
+        100.0,
+    ),
 )
 
 _ST = StrongTrackingConfig()
-_EC = SkidSteerEstimatorConfig()
+
 
 _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
@@ -271,7 +291,23 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SkidSteerEstimatorConf
         max_wheel_speed_age_s=_f(values, "estimator.max_wheel_speed_age"),
         max_step_s=_f(values, "estimator.max_step"),
         divergence=divergence_config(values),
+        max_speed=_f(values, "vehicle.max_speed"),
+        max_yaw_rate=_f(values, "vehicle.max_yaw_rate"),
     )
+
+
+def husky_overrides(path: str | Path | None = None) -> dict[str, Any]:
+    """The estimator's parameters for the BorealTC Husky: ``config/husky.yaml`` (default) read as this node.
+
+    That file's ``/**`` section describes the 4-wheel Husky for the sim-to-real replay and the importer
+    (names this node does not declare, ``vehicle.kind: husky``); its ``/**/skid_steer_estimator`` section
+    holds this node's view of it (three-axle equivalent, noise of the BorealTC IMU, 6.5 Hz wheel speeds).
+    Returns the names this node declares, the section over ``/**``, for ``overrides=`` of
+    :func:`~terrain_estimation.tools.estimate.estimate_bag` (namespace ``/husky``).
+    """
+    values = load_parameter_file(path if path is not None else default_config_path("husky"), ["skid_steer_estimator"])
+    declared = {s.name for s in PARAMETERS}
+    return {name: value for name, value in values.items() if name in declared}
 
 
 def estimate_to_state_msg(e: SkidSteerEstimate, frame_id: str) -> SkidSteerState:

@@ -254,6 +254,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--config", help="Husky config (default config/husky.yaml)")
     parser.add_argument("--bags", help="where the imported contract bags go (default OUT/bags)")
+    parser.add_argument("--overwrite", action="store_true", help="replace bags imported by an earlier run")
     parser.add_argument("--attribute", type=int, default=1, help="held-out runs per terrain given to the engine")
     parser.add_argument(
         "--attribute-seconds", type=float, default=30.0, help="first seconds of each such run given to the engine"
@@ -274,6 +275,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             Path(args.bags) if args.bags else out / "bags",
             wheel_radius=cfg["vehicle.wheel_radius"],
             transmission_ratio=cfg["vehicle.transmission_ratio"],
+            overwrite=args.overwrite,
+            inputs=[args.data],
         )
         models[run.name] = build_husky_model(bag, args.config)
         terrain_of[run.name] = run.terrain

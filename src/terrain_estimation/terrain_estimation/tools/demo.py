@@ -950,7 +950,9 @@ def run_scenario(scenario: DemoScenario, realtime_factor: float | None = None, p
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="terrain-demo", description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="out", help="directory for the plots (default: out)")
+    parser.add_argument(
+        "--out", default="out/demo", help="directory for the plots (default: out/demo; its own, or a new one)"
+    )
     parser.add_argument(
         "--overwrite",
         action="store_true",

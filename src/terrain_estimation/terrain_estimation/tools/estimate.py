@@ -92,6 +92,8 @@ class EstimationRun:
     expected_topics: dict[str, str] = field(default_factory=dict)  # absolute input topic -> pkg/msg/Name
     topics_read: dict[str, int] = field(default_factory=dict)  # absolute input topic -> messages read
     restarts: int = 0  # estimator restarts asked by the input checks
+    divergences: int = 0  # filter divergences caught and restarted (the adapter's health counters)
+    limit_resets: int = 0  # ... of which estimates beyond the vehicle's stated limits
     outputs_dropped: dict[str, int] = field(default_factory=dict)  # non-finite estimates never written
 
     def messages(self, topic: str) -> list[Any]:
@@ -189,7 +191,11 @@ def estimate_bag(
     ns = namespace if namespace is not None else entry.namespace
     values = estimator_parameters(entry, config, overrides)
     adapter = entry.make_adapter(values, ns)
-    return run_adapter(adapter, ns, bag, progress=progress, values=values)
+    run = run_adapter(adapter, ns, bag, progress=progress, values=values)
+    health = getattr(getattr(adapter, "health", None), "values", {})
+    run.divergences = int(health.get("divergences", 0))
+    run.limit_resets = int(health.get("limit_resets", 0))
+    return run
 
 
 def _stamp(msg: Any) -> float:
@@ -268,6 +274,9 @@ def _summary_lines(run: EstimationRun) -> Iterator[str]:
         yield f"  topics absent from the bag: {', '.join(missing)}"
     if run.restarts:
         yield f"  estimator restarted {run.restarts} time(s) by the input checks"
+    if run.divergences:
+        beyond = f" ({run.limit_resets} beyond the vehicle's limits)" if run.limit_resets else ""
+        yield f"  filter diverged {run.divergences} time(s){beyond}: caught and restarted"
     for reason, count in sorted(run.outputs_dropped.items()):
         yield f"  not written {count}: {reason}"
     topics = sorted({t for t, _, _ in run.outputs})

@@ -54,6 +54,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         help=f"shortest stamp gap (s) that splits the bag, if above 10 median periods (default {GAP_MIN_S:g})",
     )
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="write into an existing -o directory not made by a project tool"
+    )
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     args = parser.parse_args(argv)
     started = time.monotonic()
@@ -63,6 +66,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"sim2real [{time.monotonic() - started:5.1f} s]: {text}", file=sys.stderr, flush=True)
 
     def body() -> int:
+        if args.output:  # refused before the diagnosis, not after it
+            from terrain_estimation.outputs import prepare_output_dir
+
+            inputs = [args.bag, *([args.config] if args.config else [])]
+            prepare_output_dir(args.output, overwrite=args.overwrite, inputs=inputs, tool=PROG)
         result = diagnose(
             args.bag,
             args.vehicle,

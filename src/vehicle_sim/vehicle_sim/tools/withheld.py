@@ -165,6 +165,7 @@ import numpy as np
 
 from terrain_estimation.bag import AtomicBagWriter, BagError
 from terrain_estimation.cli import cli_main
+from terrain_estimation.outputs import MARKER, OutputExistsError, prepare_output_dir
 from terrain_estimation.params import ParameterError
 from terrain_estimation.ros.time import ns_to_stamp, stamp_to_ns
 from terrain_estimation.tools.estimate import topic_name
@@ -970,14 +971,16 @@ def generate(
     With ``signatures`` (default), every ``effect`` and ``out_of_catalogue``
     label gets the bag's effect ``signature`` (module docstring), and
     ``labels.json`` the noise σ per channel of each vehicle
-    (``noise_sigma``). Existing ``out/bags`` is replaced. Returns a summary
+    (``noise_sigma``). A previous suite of this tool's in ``out`` is replaced; a directory
+    it did not create is refused. Returns a summary
     (bag count, seconds).
     """
-    root = Path(out)
-    root.mkdir(parents=True, exist_ok=True)
+    root = prepare_output_dir(out, tool="vehicle_sim.tools.withheld")  # refuses a directory it did not make
     bags = root / "bags"
     if bags.exists():
-        shutil.rmtree(bags)
+        if not (root / MARKER).is_file():
+            raise OutputExistsError(f"{str(bags)!r} exists in a directory this tool did not create: not replaced")
+        shutil.rmtree(bags)  # a previous suite of this tool's
     for name in ("manifest.json", "labels.json"):
         (root / name).unlink(missing_ok=True)
     started = time.monotonic()
