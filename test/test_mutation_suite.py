@@ -32,7 +32,11 @@ SIM2REAL_EVERY_VEHICLE = {"type", "gap_1h", "garbage", "spike", "nan", "empty", 
 @cache
 def _clean_statuses(vehicle: str, sim2real: bool, tmp: str) -> tuple[int, int | None]:
     clean = run_case(
-        MUTATIONS[0], vehicle, BAGS / DEFAULT_BAGS[vehicle], Path(tmp) / f"clean-{vehicle}", sim2real=sim2real
+        MUTATIONS[0],
+        vehicle,
+        BAGS / DEFAULT_BAGS[vehicle],
+        Path(tmp) / f"clean-{vehicle}-{sim2real}",
+        sim2real=sim2real,
     )
     assert clean.ok, clean.problems
     return clean.estimate.status, clean.sim2real.status if clean.sim2real else None

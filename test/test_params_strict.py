@@ -186,7 +186,7 @@ def test_param_values_are_parsed_with_bounds(capsys, tmp_path):
     argv = ["missing_bag", "--vehicle", "quarter_car", "-o", str(tmp_path / "o"), "--param"]
     assert estimate.main([*argv, "filter.type=" + "x" * 100_000]) == 2
     err = capsys.readouterr().err
-    assert "filter.type" in err and "..." in err and len(err) < 1000, err[:2000]
+    assert "filter.type" in err and len(err) < 1000, err[:2000]
 
 
 def test_validation_errors_quote_a_huge_value_briefly():

@@ -36,6 +36,23 @@ __all__ = ["main"]
 PROG = "terrain-sim2real"
 
 
+def _check_report_dir(path: str, *, overwrite: bool, inputs: Sequence[str]) -> None:
+    """What :func:`~terrain_estimation.outputs.prepare_output_dir` would refuse, refused now; nothing created."""
+    from pathlib import Path
+
+    from terrain_estimation.outputs import MARKER, OutputExistsError, check_inputs
+
+    p = Path(path)
+    check_inputs(p, inputs)
+    if p.exists() and not p.is_dir():
+        raise OutputExistsError(f"output directory {path!r} exists and is not a directory; choose another path")
+    if p.is_dir() and not (p / MARKER).is_file() and any(p.iterdir()) and not overwrite:
+        raise OutputExistsError(
+            f"output directory {path!r} exists and was not created by a terrain-estimation tool; "
+            "pass --overwrite to write into it anyway (same-named files are replaced) or choose another path"
+        )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
     parser.add_argument("bag", help="input bag directory (mcap or sqlite3)")
@@ -66,11 +83,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"sim2real [{time.monotonic() - started:5.1f} s]: {text}", file=sys.stderr, flush=True)
 
     def body() -> int:
-        if args.output:  # refused before the diagnosis, not after it
-            from terrain_estimation.outputs import prepare_output_dir
-
-            inputs = [args.bag, *([args.config] if args.config else [])]
-            prepare_output_dir(args.output, overwrite=args.overwrite, inputs=inputs, tool=PROG)
+        inputs = [args.bag, *([args.config] if args.config else [])]
+        if args.output:  # refused before the diagnosis, not after it; created only once there is one to write
+            _check_report_dir(args.output, overwrite=args.overwrite, inputs=inputs)
         result = diagnose(
             args.bag,
             args.vehicle,
@@ -81,8 +96,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             min_gap=args.max_gap,
         )
         if args.output:
+            from terrain_estimation.outputs import prepare_output_dir
             from terrain_estimation.sim2real.report import write_diagnosis
 
+            prepare_output_dir(args.output, overwrite=args.overwrite, inputs=inputs, tool=PROG)
             paths = write_diagnosis(result, args.output, figures=not args.no_figures)
             progress(f"wrote {', '.join(str(p) for p in paths)}")
         progress(f"done in {time.monotonic() - started:.1f} s")
