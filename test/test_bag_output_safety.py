@@ -262,3 +262,28 @@ def test_borealtc_cli_refuses_existing_runs_and_inputs(tmp_path: Path, capsys: p
     assert borealtc.main(["--data", str(data), "--out", str(data), "--overwrite"]) == EXIT_INPUT
     assert "the input" in capsys.readouterr().err
     assert not (data / "ASPHALT" / "run_00").exists()
+
+
+def test_withheld_generator_replaces_only_its_own_suite(tmp_path: Path) -> None:
+    """The withheld-suite generator removes ``bags/`` only in a directory it created itself."""
+    from terrain_estimation.outputs import OutputExistsError, prepare_output_dir
+    from vehicle_sim.tools.withheld import generate
+
+    foreign = tmp_path / "foreign"  # a user's directory
+    (foreign / "bags").mkdir(parents=True)
+    (foreign / "bags" / "mine.txt").write_text("a user's file\n")
+    with pytest.raises(OutputExistsError):
+        generate(foreign, [], progress=False, signatures=False)
+    other = prepare_output_dir(tmp_path / "other", tool="terrain-sim2real")  # another project tool's
+    (other / "bags").mkdir()
+    (other / "bags" / "mine.txt").write_text("kept\n")
+    with pytest.raises(OutputExistsError):
+        generate(other, [], progress=False, signatures=False)
+    assert (foreign / "bags" / "mine.txt").read_text() == "a user's file\n"
+    assert (other / "bags" / "mine.txt").read_text() == "kept\n"
+    own = tmp_path / "own"
+    generate(own, [], progress=False, signatures=False)
+    (own / "bags").mkdir(exist_ok=True)
+    (own / "bags" / "old.mcap").write_text("")
+    generate(own, [], progress=False, signatures=False)  # its own previous suite: replaced
+    assert not (own / "bags" / "old.mcap").exists()

@@ -292,14 +292,19 @@ def test_an_upside_down_imu_never_yields_a_converged_estimate_live(simulated, rc
         h.close()
 
 
-def test_an_upside_down_imu_never_yields_a_converged_estimate_offline(simulated, tmp_path: Path) -> None:
-    """The offline runner must tell the adapter what the guard has judged (``inputs_judged``) as the node does."""
+def _offline_upside_down(simulated: Any, tmp_path: Path, vehicle: str, topic: str) -> Any:
+    """``estimate_bag`` on the simulated bag of ``vehicle`` with the accelerometer of ``topic`` upside down."""
 
-    def flip(topic: str, msg: Any, index: int) -> None:
-        if topic == "/quarter_car/imu/body":
+    def flip(name: str, msg: Any, index: int) -> None:
+        if name == topic:
             _upside_down(msg.linear_acceleration)
 
-    run = estimate_bag(_rewritten(simulated("quarter_car"), tmp_path / "flipped", flip), "quarter_car")
+    return estimate_bag(_rewritten(simulated(vehicle), tmp_path / "flipped", flip), vehicle)
+
+
+def test_an_upside_down_imu_never_yields_a_converged_estimate_offline(simulated, tmp_path: Path) -> None:
+    """The offline runner must tell the adapter what the guard has judged (``inputs_judged``) as the node does."""
+    run = _offline_upside_down(simulated, tmp_path, "quarter_car", "/quarter_car/imu/body")
     reason = f"imu/body: linear_acceleration (z) {DOWN}"
     assert set(run.rejected) == {reason} and run.restarts == 1
     estimates = run.messages("/quarter_car/soil_stiffness")
@@ -307,11 +312,7 @@ def test_an_upside_down_imu_never_yields_a_converged_estimate_offline(simulated,
 
 
 def test_skid_steer_upside_down_offline(simulated, tmp_path: Path) -> None:
-    def flip(topic: str, msg: Any, index: int) -> None:
-        if topic == "/skid_steer/imu":
-            _upside_down(msg.linear_acceleration)
-
-    run = estimate_bag(_rewritten(simulated("skid_steer"), tmp_path / "flipped", flip), "skid_steer")
+    run = _offline_upside_down(simulated, tmp_path, "skid_steer", "/skid_steer/imu")
     reason = f"imu: linear_acceleration (x, y, z) {DOWN}"
     imus = sum(1 for _ in read_bag(simulated("skid_steer"), ["/skid_steer/imu"]))
     assert set(run.rejected) == {reason} and run.restarts == 1

@@ -52,6 +52,8 @@ __all__ = [
     "BagTopic",
     "AtomicBagWriter",
     "message_class",
+    "msgtype_name",
+    "msgtype_of",
     "MissingTopicsError",
     "read_bag",
     "remove_stale_partials",
@@ -531,8 +533,11 @@ def _cdr_length(raw: bytes, msgtype: str) -> int:
     return int(end)
 
 
+def msgtype_name(cls: type) -> str:
+    """``pkg/msg/Name`` of an rclpy message class (``sensor_msgs.msg._imu.Imu`` -> ``sensor_msgs/msg/Imu``)."""
+    return f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
+
+
 def msgtype_of(msg: Any) -> str:
     """``pkg/msg/Name`` of an rclpy message object."""
-    module = type(msg).__module__  # e.g. sensor_msgs.msg._imu
-    package = module.split(".")[0]
-    return f"{package}/msg/{type(msg).__name__}"
+    return msgtype_name(type(msg))

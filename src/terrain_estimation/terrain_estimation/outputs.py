@@ -48,6 +48,7 @@ __all__ = [
     "OutputIsInputError",
     "OutputPathError",
     "check_inputs",
+    "check_output_dir",
     "check_output_path",
     "is_bag_directory",
     "prepare_output_dir",
@@ -175,6 +176,29 @@ def check_output_path(
     return p
 
 
+def check_output_dir(path: PathLike, *, overwrite: bool = False, inputs: Iterable[PathLike] = ()) -> Path:
+    """What :func:`prepare_output_dir` refuses, refused without creating anything (before a long run).
+
+    Raises:
+        OutputIsInputError: the directory is, is inside, or contains an input.
+        OutputExistsError: the path is a file, or a non-empty directory a project tool did not
+            create (no :data:`MARKER`) and ``overwrite`` is not set.
+    """
+    p = Path(path)
+    check_inputs(p, inputs)
+    if p.exists() and not p.is_dir():
+        raise OutputExistsError(
+            f"output directory {str(p)!r} exists and is not a directory: it is never replaced; choose another path"
+        )
+    if p.is_dir() and not (p / MARKER).is_file() and any(p.iterdir()) and not overwrite:
+        raise OutputExistsError(
+            f"output directory {str(p)!r} exists, holds {_listing(p)} and was not created by a "
+            "terrain-estimation tool; pass --overwrite to write into it anyway (files of the same "
+            "names are replaced, nothing else is touched) or choose another path"
+        )
+    return p
+
+
 def prepare_output_dir(
     path: PathLike,
     *,
@@ -187,33 +211,17 @@ def prepare_output_dir(
     A missing or empty directory is created and marked (:data:`MARKER`, a
     small text file naming ``tool``); a directory holding the marker (made
     by an earlier run of a project tool) is used as it is. A non-empty
-    directory without the marker is refused unless ``overwrite``: then the
-    tool's files are written among the others, replacing only same-named
-    ones, and the directory is not marked. Nothing is ever deleted here: a
-    tool that uses this must write only its own named files.
+    directory without the marker is refused unless ``overwrite``
+    (:func:`check_output_dir`): then the tool's files are written among the
+    others, replacing only same-named ones, and the directory is not marked.
+    Nothing is ever deleted here: a tool that uses this must write only its
+    own named files.
 
     Raises:
-        OutputIsInputError: the directory is, is inside, or contains an input.
-        OutputExistsError: the path is a file, or a non-empty unmarked
-            directory without ``overwrite``.
+        OutputIsInputError, OutputExistsError: as :func:`check_output_dir`.
     """
-    p = Path(path)
-    check_inputs(p, inputs)
-    if p.exists() and not p.is_dir():
-        raise OutputExistsError(
-            f"output directory {str(p)!r} exists and is not a directory: it is never replaced; choose another path"
-        )
+    p = check_output_dir(path, overwrite=overwrite, inputs=inputs)
     p.mkdir(parents=True, exist_ok=True)
-    marker = p / MARKER
-    if marker.is_file():
-        return p
-    if any(p.iterdir()):
-        if not overwrite:
-            raise OutputExistsError(
-                f"output directory {str(p)!r} exists, holds {_listing(p)} and was not created by a "
-                "terrain-estimation tool; pass --overwrite to write into it anyway (files of the same "
-                "names are replaced, nothing else is touched) or choose another path"
-            )
-        return p
-    marker.write_text(f"created by {tool}: an output directory of the terrain-estimation project\n")
+    if not (p / MARKER).is_file() and not any(p.iterdir()):
+        (p / MARKER).write_text(f"created by {tool}: an output directory of the terrain-estimation project\n")
     return p

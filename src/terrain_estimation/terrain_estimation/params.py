@@ -98,8 +98,7 @@ _REPR.maxlevel = 3
 
 def quote(value: Any, limit: int = MAX_QUOTE) -> str:
     """``repr(value)`` of at most ``limit`` characters, cut with ``...`` (bounded work for a huge value)."""
-    text = _REPR.repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+    return _cut(_REPR.repr(value), limit)
 
 
 @dataclass(frozen=True)

@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from terrain_estimation.bag import BagError, msgtype_of, read_bag, require_topics, typestore
+from terrain_estimation.bag import BagError, msgtype_name, read_bag, require_topics, typestore
 from terrain_estimation.ros.time import stamp_to_ns
 from terrain_estimation.ros.validation import InputGuard, field_value
 from terrain_estimation.sim2real.where import Sim2RealError
@@ -174,11 +174,6 @@ class InputReport:
         for reason, count in sorted(self.rejected.items(), key=lambda kv: (-kv[1], kv[0])):
             out.append(f"  rejected {count}: {reason}")
         return out
-
-
-def _spec_msgtype(spec: Any) -> str:
-    """``pkg/msg/Name`` of a TopicSpec's message class."""
-    return msgtype_of(spec.msg_type())
 
 
 def input_specs(
@@ -342,7 +337,7 @@ def screen_bag(
         raise Sim2RealError(f"the shortest time gap must be a positive number of seconds, got {min_gap}")
     specs, values, ns = input_specs(vehicle, namespace, config)
     by_topic = {topic_name(ns, s.topic): s for s in specs}
-    report = InputReport(expected={t: _spec_msgtype(s) for t, s in by_topic.items()})
+    report = InputReport(expected={t: msgtype_name(s.msg_type) for t, s in by_topic.items()})
     require_topics(bag, report.expected)
     sigma_h = float(values.get("estimator.profile_noise_std", 0.0) or 0.0)
     report.rules = [

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from terrain_estimation.bag import AtomicBagWriter, bag_contents, read_bag
+from terrain_estimation.bag import AtomicBagWriter, bag_contents, msgtype_name, read_bag
 from terrain_estimation.cli import EXIT_OK, InputError, run_cli
 from terrain_estimation.outputs import check_output_path
 from terrain_estimation.params import parse_override
@@ -40,11 +40,6 @@ from terrain_estimation.ros.validation import InputGuard, first_nonfinite
 from terrain_estimation.vehicles import VEHICLES, estimator_parameters, get_vehicle
 
 __all__ = ["EstimationRun", "estimate_bag", "run_adapter", "main", "numeric_fields", "topic_name"]
-
-
-def msgtype_name(cls: type) -> str:
-    """``pkg/msg/Name`` of an rclpy message class (``sensor_msgs.msg._imu.Imu`` -> ``sensor_msgs/msg/Imu``)."""
-    return f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
 
 
 def topic_name(namespace: str, relative: str) -> str:

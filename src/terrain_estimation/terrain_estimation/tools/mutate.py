@@ -126,7 +126,7 @@ class Case:
 
 def _edit(topic_suffix: str, edit: Callable[[Any, int], Any], *, every: bool = False, at: float = 0.5) -> Transform:
     """Decode the messages of ``topic_suffix`` (the one at ``at`` of the bag's time, or every one) and ``edit`` them."""
-    state = {"count": 0, "total": 0}
+    state = {"count": 0}
 
     def transform(msg: RawMessage, store: Any) -> Iterator[RawMessage]:
         if not msg.topic.endswith("/" + topic_suffix):
@@ -218,7 +218,7 @@ def _garbage_bytes(accel_topic: str) -> Transform:
 
 def _raw_at(topic_suffix: str, edit: Transform, *, at: float = 0.5) -> Transform:
     """``edit`` the one message of ``topic_suffix`` at ``at`` of the topic's messages, raw."""
-    state = {"count": 0, "total": 0}
+    state = {"count": 0}
 
     def transform(msg: RawMessage, store: Any) -> Iterator[RawMessage]:
         if msg.topic.endswith("/" + topic_suffix):
@@ -237,7 +237,7 @@ def _stamp_shift(seconds: float, *, from_fraction: float = 0.5, every_topic: boo
     """Stamps (and log times) of every message from ``from_fraction`` of the bag on moved by ``seconds``."""
 
     def make(_accel_topic: str) -> Transform:
-        state: dict[str, Any] = {"t0": None}
+        state: dict[str, Any] = {}
 
         def transform(msg: RawMessage, store: Any) -> Iterator[RawMessage]:
             start = state["split_ns"]
@@ -268,7 +268,7 @@ def _add_ns(stamp: Any, shift: int) -> None:
 
 def _reorder(accel_topic: str) -> Transform:
     """The header stamps of two consecutive accelerometer samples swapped (recorded in arrival order)."""
-    state: dict[str, Any] = {"count": 0, "total": 0, "held": None}
+    state: dict[str, Any] = {"count": 0, "held": None}
 
     def transform(msg: RawMessage, store: Any) -> Iterator[RawMessage]:
         if not msg.topic.endswith("/" + accel_topic):

@@ -28,29 +28,13 @@ import time
 from collections.abc import Sequence
 
 from terrain_estimation.cli import EXIT_FINDING, EXIT_OK, run_cli
+from terrain_estimation.outputs import check_output_dir, prepare_output_dir
 from terrain_estimation.sim2real.diagnose import BUILDERS, diagnose
 from terrain_estimation.sim2real.inputs import GAP_MIN_S
 
 __all__ = ["main"]
 
 PROG = "terrain-sim2real"
-
-
-def _check_report_dir(path: str, *, overwrite: bool, inputs: Sequence[str]) -> None:
-    """What :func:`~terrain_estimation.outputs.prepare_output_dir` would refuse, refused now; nothing created."""
-    from pathlib import Path
-
-    from terrain_estimation.outputs import MARKER, OutputExistsError, check_inputs
-
-    p = Path(path)
-    check_inputs(p, inputs)
-    if p.exists() and not p.is_dir():
-        raise OutputExistsError(f"output directory {path!r} exists and is not a directory; choose another path")
-    if p.is_dir() and not (p / MARKER).is_file() and any(p.iterdir()) and not overwrite:
-        raise OutputExistsError(
-            f"output directory {path!r} exists and was not created by a terrain-estimation tool; "
-            "pass --overwrite to write into it anyway (same-named files are replaced) or choose another path"
-        )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -85,7 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     def body() -> int:
         inputs = [args.bag, *([args.config] if args.config else [])]
         if args.output:  # refused before the diagnosis, not after it; created only once there is one to write
-            _check_report_dir(args.output, overwrite=args.overwrite, inputs=inputs)
+            check_output_dir(args.output, overwrite=args.overwrite, inputs=inputs)
         result = diagnose(
             args.bag,
             args.vehicle,
@@ -96,7 +80,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             min_gap=args.max_gap,
         )
         if args.output:
-            from terrain_estimation.outputs import prepare_output_dir
             from terrain_estimation.sim2real.report import write_diagnosis
 
             prepare_output_dir(args.output, overwrite=args.overwrite, inputs=inputs, tool=PROG)

@@ -975,10 +975,12 @@ def generate(
     it did not create is refused. Returns a summary
     (bag count, seconds).
     """
-    root = prepare_output_dir(out, tool="vehicle_sim.tools.withheld")  # refuses a directory it did not make
+    tool = "vehicle_sim.tools.withheld"
+    root = prepare_output_dir(out, tool=tool)  # refuses a non-empty directory no project tool made
     bags = root / "bags"
     if bags.exists():
-        if not (root / MARKER).is_file():
+        marker = root / MARKER
+        if not (marker.is_file() and marker.read_text().startswith(f"created by {tool}:")):
             raise OutputExistsError(f"{str(bags)!r} exists in a directory this tool did not create: not replaced")
         shutil.rmtree(bags)  # a previous suite of this tool's
     for name in ("manifest.json", "labels.json"):
