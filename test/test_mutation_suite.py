@@ -54,8 +54,10 @@ def _runs(vehicle: str, case: Case) -> bool:
 
 # Known and not yet fixed: strict, so that the fix shows.
 KNOWN = {
-    ("lrv", "reorder"): "one body-IMU sample stamped one period late (its successor rejected as out of order) "
-    "turns the LRV's diagnosis from 'no significant gap' to a gap (body residual 1.48x the noise): not yet explained",
+    ("lrv", "reorder"): "the late sample reads the body acceleration of one period earlier: on the ISO G road "
+    "at 2 m/s consecutive samples differ by up to 10 m/s^2 (11.77 vs 1.41 here), a 14-sigma residual, and one "
+    "such sample doubles the window's mean r^2 (power ratio 2.2 > 1.26): the diagnosis's gap statistic is not "
+    "robust to a single outlier (sim-to-real engine, issue 22)",
 }
 
 
@@ -89,4 +91,44 @@ def test_damage_is_refused_or_counted_and_nothing_is_destroyed(
         detail += f"\nterrain-sim2real said:\n{outcome.sim2real.text[-3000:]}"
     assert outcome.input_unchanged, detail
     assert not outcome.nonfinite, detail
+    assert outcome.ok, "; ".join(outcome.problems) + detail
+
+
+# One case of each kind again on bags simulated now (the simulator as it is, not the shipped recordings).
+FRESH_CASES = (
+    "nan", "spike", "in_g", "upside_down", "frame", "type", "reorder", "gap_1h", "garbage",
+    "bad_metadata", "truncated", "missing", "namespace", "out_is_input",
+)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def fresh_bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, tuple[int, int | None]]]:
+    """4 s of each vehicle simulated now, with both tools' statuses on the undamaged bag."""
+    from vehicle_sim.tools.simulate import record
+
+    root = tmp_path_factory.mktemp("fresh")
+    out = {}
+    for vehicle in ("quarter_car", "skid_steer"):
+        assert record(vehicle, 4.0, root / vehicle) > 0
+        clean = run_case(
+            MUTATIONS[0], vehicle, root / vehicle, root / f"clean-{vehicle}", sim2real=vehicle == "quarter_car"
+        )
+        assert clean.ok, clean.problems
+        out[vehicle] = (root / vehicle, (clean.estimate.status, clean.sim2real.status if clean.sim2real else None))
+    return out
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("vehicle", ["quarter_car", "skid_steer"])
+@pytest.mark.parametrize("name", FRESH_CASES)
+def test_damage_to_a_freshly_simulated_bag(
+    vehicle: str, name: str, fresh_bags: dict[str, tuple[Path, tuple[int, int | None]]], tmp_path: Path
+) -> None:
+    case = next(c for c in MUTATIONS if c.name == name)
+    bag, statuses = fresh_bags[vehicle]
+    outcome = run_case(case, vehicle, bag, tmp_path / "case", clean_status=statuses, sim2real=vehicle == "quarter_car")
+    detail = f"\nterrain-estimate said:\n{outcome.estimate.text[-3000:]}"
+    if outcome.sim2real is not None:
+        detail += f"\nterrain-sim2real said:\n{outcome.sim2real.text[-3000:]}"
+    assert outcome.input_unchanged and not outcome.nonfinite, detail
     assert outcome.ok, "; ".join(outcome.problems) + detail
