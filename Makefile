@@ -30,7 +30,7 @@ export OMP_NUM_THREADS ?= 1
 
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc reproduce-skid reproduce-rover bench bench-load property-long bags clean distclean constraints validate-sim2real validate-sim2real-seed2027 sim2real-real-data
+.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc reproduce-skid reproduce-rover bench bench-load mutate property-long bags clean distclean constraints validate-sim2real validate-sim2real-seed2027 sim2real-real-data
 
 setup: $(PKGS_STAMP)
 
@@ -70,6 +70,9 @@ bench: setup  ## per-step filter cost (ours vs filterpy), bag throughput, simula
 
 property-long: setup  ## the square-root filters' property tests over 10^6 random steps (issue 7; ~4 min)
 	TERRAIN_PROPERTY_STEPS=1000000 $(PY) -m pytest -s -q --timeout=1800 -p no:xdist test/filters/test_filters_faults_properties.py
+
+mutate: setup  ## every kind of damage to the shipped bags through both offline tools (issue 19; ~10 min) -> docs/results/robustness.md
+	$(PY) -m terrain_estimation.tools.mutate --report docs/results/robustness.md
 
 bench-load: setup  ## many vehicles and load: latency, dropped input, CPU per vehicle (issue 7) -> docs/results/robustness.md
 	$(PY) -m terrain_estimation.tools.bench_load --out docs/results/robustness.md

@@ -110,6 +110,7 @@ from typing import Any
 import numpy as np
 
 from terrain_estimation.cli import cli_main
+from terrain_estimation.tools.reporting import keep_sections
 
 __all__ = [
     "Case",
@@ -1103,7 +1104,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.out:
         command += f" --out {args.out}"
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(format_markdown(rows, ceilings, machine, command, args.quick))
+        page = Path(args.out)
+        text = format_markdown(rows, ceilings, machine, command, args.quick)
+        page.write_text(keep_sections(page.read_text(), text) if page.exists() else text)  # others' sections stay
     if args.json:
         Path(args.json).write_text(
             json.dumps({"machine": machine, "rows": rows, "offline_ceiling": ceilings}, indent=2) + "\n"

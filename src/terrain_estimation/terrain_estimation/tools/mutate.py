@@ -27,6 +27,7 @@ import hashlib
 import io
 import json
 import math
+import os
 import shutil
 import sys
 import tempfile
@@ -723,25 +724,28 @@ def _message_count(bag: Path) -> int:
         return int(reader.message_count)
 
 
-def _status(run: ToolRun | None) -> str:
+def _status(run: ToolRun | None, workdir: str) -> str:
     if run is None:
         return "—"
     head = run.headline().replace("|", "\\|")
+    if workdir:
+        head = head.replace(workdir, "DIR")
     head = head if len(head) <= 110 else head[:107] + "…"
     return f"{run.status}: {head}"
 
 
-def table(outcomes: Sequence[Outcome]) -> list[str]:
-    """The outcomes as Markdown table lines."""
+def table(outcomes: Sequence[Outcome], workdir: str | os.PathLike[str] = "") -> list[str]:
+    """The outcomes as Markdown table lines (``workdir`` written as DIR)."""
     lines = [
         "| vehicle | kind | damage | terrain-estimate (exit: message) | terrain-sim2real (exit: message) "
         "| input unchanged | as required |",
         "|---|---|---|---|---|---|---|",
     ]
+    wd = str(workdir)
     for o in outcomes:
         verdict = "yes" if o.ok else "**no**: " + "; ".join(o.problems)
         lines.append(
-            f"| {o.vehicle} | {o.case.kind} | {o.case.what} | {_status(o.estimate)} | {_status(o.sim2real)} | "
+            f"| {o.vehicle} | {o.case.kind} | {o.case.what} | {_status(o.estimate, wd)} | {_status(o.sim2real, wd)} | "
             f"{'yes' if o.input_unchanged else '**no**'} | {verdict} |"
         )
     return lines
@@ -755,6 +759,29 @@ DEFAULT_BAGS = {
 }
 
 
+def _write_report(page: str, lines: Sequence[str], summary: str, argv: Sequence[str] | None, seconds: float) -> None:
+    """The table as the ``mutate`` section of ``page`` (the rest of the page is another command's)."""
+    from terrain_estimation.tools.reporting import git_revision, write_section
+
+    command = "python -m terrain_estimation.tools.mutate " + " ".join(sys.argv[1:] if argv is None else argv)
+    when = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    text = [
+        "## Damaged input: what the offline tools do with it (issue 19)",
+        "",
+        f"Produced by `{command.strip()}` on {when} at revision {git_revision()} in {seconds:.0f} s. Each row "
+        "damages a shipped bag (with rosbags alone) and runs `terrain-estimate` and `terrain-sim2real` on it; "
+        '"as required" holds each run to the exit status and message of its case '
+        "(`terrain_estimation.tools.mutate.MUTATIONS`; 0 ok, 1 a gap found, 2 the input cannot be used, 3 a bug), "
+        "to nothing non-finite written and to every input file hashed unchanged. DIR is the working directory. "
+        "`test/test_mutation_suite.py` runs the same cases, and one of each kind on freshly simulated bags.",
+        "",
+        *lines,
+        "",
+        summary + ".",
+    ]
+    write_section(page, "terrain_estimation.tools.mutate", "\n".join(text))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     from terrain_estimation.cli import EXIT_FINDING, EXIT_OK, run_cli
 
@@ -764,6 +791,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--only", action="append", help="run only these cases (by name)")
     parser.add_argument("--no-sim2real", action="store_true", help="run terrain-estimate only")
     parser.add_argument("--out", help="keep the damaged bags and outputs in this new directory")
+    parser.add_argument(
+        "--report", metavar="PAGE", help="also write the table as a section of this Markdown page (replaced if there)"
+    )
     args = parser.parse_args(argv)
 
     def body() -> int:
@@ -772,6 +802,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         keep = Path(args.out) if args.out else None
         if keep is not None and keep.exists():
             raise FileExistsError(f"--out {str(keep)!r} exists: give a new directory")
+        started = time.monotonic()
         with tempfile.TemporaryDirectory(prefix="terrain-mutate-") as tmp:
             root = keep or Path(tmp)
             for vehicle in args.vehicle or sorted(DEFAULT_BAGS):
@@ -795,9 +826,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                     outcomes.append(o)
                     mark = "ok" if o.ok else "FAIL: " + "; ".join(o.problems)
                     print(f"  {vehicle:11s} {case.name:13s} {mark}", file=sys.stderr, flush=True)
-        print("\n".join(table(outcomes)))
+            lines = table(outcomes, root)
         failed = [o for o in outcomes if not o.ok]
-        print(f"\n{len(outcomes) - len(failed)} of {len(outcomes)} cases as required")
+        summary = f"{len(outcomes) - len(failed)} of {len(outcomes)} cases as required"
+        print("\n".join(lines) + f"\n\n{summary}")
+        if args.report:
+            _write_report(args.report, lines, summary, argv, time.monotonic() - started)
         return EXIT_OK if not failed else EXIT_FINDING
 
     return run_cli("terrain-mutate", body)

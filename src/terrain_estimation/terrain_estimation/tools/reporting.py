@@ -28,6 +28,8 @@ __all__ = [
     "cpu_seconds",
     "format_number",
     "git_revision",
+    "write_section",
+    "keep_sections",
     "in_window",
     "pyplot",
     "reproduction_arguments",
@@ -226,3 +228,43 @@ def reproduction_arguments(
     if args.jobs < 1:
         parser.error("--jobs must be ≥ 1")
     return args, list(sys.argv[1:] if argv is None else argv)
+
+
+_SECTION = "<!-- {edge}: {name} (written by its command; the rest of the page by another) -->"
+
+
+def _section_re(name: str) -> Any:
+    import re
+
+    begin = re.escape(_SECTION.format(edge="begin", name=name))
+    end = re.escape(_SECTION.format(edge="end", name=name))
+    return re.compile(rf"\n*{begin}\n.*?\n{end}\n", re.DOTALL)
+
+
+def write_section(path: str | os.PathLike[str], name: str, text: str) -> Path:
+    """Put ``text`` in the page ``path`` as the section ``name``: replaced in place if there, else appended.
+
+    Two commands can then share one results page (``make bench-load`` writes
+    ``robustness.md`` whole and keeps the sections of others: :func:`keep_sections`).
+    """
+    page = Path(path)
+    block = f"{_SECTION.format(edge='begin', name=name)}\n{text.rstrip()}\n{_SECTION.format(edge='end', name=name)}\n"
+    old = page.read_text() if page.exists() else ""
+    pattern = _section_re(name)
+    new = pattern.sub(lambda _m: "\n\n" + block, old, count=1) if pattern.search(old) else old.rstrip() + "\n\n" + block
+    page.parent.mkdir(parents=True, exist_ok=True)
+    page.write_text(new.lstrip("\n"))
+    return page
+
+
+def keep_sections(old: str, new: str) -> str:
+    """``new`` with every section of other commands found in ``old`` (:func:`write_section`) appended."""
+    import re
+
+    names = re.findall(re.escape(_SECTION.format(edge="begin", name="@@")).replace("@@", "(.+?)"), old)
+    for name in names:
+        if _section_re(name).search(new) is None:
+            match = _section_re(name).search(old)
+            assert match is not None
+            new = new.rstrip() + "\n\n" + match.group(0).lstrip("\n")
+    return new
