@@ -10,8 +10,9 @@ messages are dropped and counted per reason (:class:`InputReport`). The checks:
    naming the topics expected and found). A message whose bytes do not
    decode is dropped and counted.
 2. Absurd values (:data:`ABSURD`): a checked field beyond what no sensor of a
-   ground vehicle reads (|a| > 1000 m/s², |ω| > 100 rad/s, a profile height
-   beyond ±20 km, ...) is dropped before anything else sees it.
+   ground vehicle reads (|ω| > 100 rad/s, a profile height beyond ±20 km, ...)
+   is dropped before anything else sees it. Accelerometers are the guard's
+   (3.: ``input.max_acceleration``), the estimators' own rule.
 3. The estimator's own checks, :class:`~terrain_estimation.ros.validation.InputGuard`
    with the estimator's input topics and its ``input.*`` parameters, the
    bag's log time as the clock (as ``terrain-estimate``): frame, stamps
@@ -77,7 +78,6 @@ GAP_MIN_S = 0.5
 """... and than this many seconds (default; ``--max-gap``)."""
 
 ABSURD: tuple[tuple[str, float, str], ...] = (
-    ("linear_acceleration.", 1000.0, "m/s²"),
     ("angular_velocity.", 100.0, "rad/s"),
     ("velocity[", 1e4, "rad/s"),
     ("position[", 1e7, "rad"),
