@@ -19,8 +19,9 @@
   (:mod:`terrain_estimation.outputs`).
 
 Messages are serialised with rclpy (CDR, identical to what a live publisher
-sends, cut to its exact length) and stored with rosbags; every bag written
-decodes with rosbags' ``AnyReader`` and with rclpy.
+sends, in its canonical bytes: cut to length, padding zeroed) and stored with
+rosbags; every bag written decodes with rosbags' ``AnyReader`` and with rclpy,
+and the same messages always give the same bytes.
 """
 
 from __future__ import annotations
@@ -455,11 +456,10 @@ class AtomicBagWriter:
         rclpy's ``serialize_message`` (rmw_fastrtps, Jazzy) returns a buffer
         longer than the CDR it holds whenever the message has an empty
         sequence, the tail being uninitialised memory; rosbags then refuses
-        the message ("CDR message size mismatch"). The bytes are cut to the
-        CDR length that rosbags' own walk of the same definition finds
-        (measured: 15-22 µs per Imu/JointState written against 11-16 µs
-        uncut). rclpy also leaves alignment padding uninitialised: decoders
-        skip it, but the bytes of a bag are not reproducible, only its values.
+        the message ("CDR message size mismatch"). rclpy also leaves the
+        alignment padding uninitialised. The bytes written are the canonical
+        ones (:func:`_canonical_cdr`): cut to the length rosbags' walk of the
+        definition finds, then read and written again by rosbags' serialiser.
         """
         from rclpy.serialization import serialize_message
 
