@@ -53,12 +53,7 @@ def _runs(vehicle: str, case: Case) -> bool:
 
 
 # Known and not yet fixed: strict, so that the fix shows.
-KNOWN = {
-    ("lrv", "reorder"): "the late sample reads the body acceleration of one period earlier: on the ISO G road "
-    "at 2 m/s consecutive samples differ by up to 10 m/s^2 (11.77 vs 1.41 here), a 14-sigma residual, and one "
-    "such sample doubles the window's mean r^2 (power ratio 2.2 > 1.26): the diagnosis's gap statistic is not "
-    "robust to a single outlier (sim-to-real engine, issue 22)",
-}
+KNOWN: dict[tuple[str, str], str] = {}
 
 
 CASES = [

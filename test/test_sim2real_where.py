@@ -109,6 +109,36 @@ def test_bias_floor_scales_with_the_channel_noise() -> None:
     assert any("bias" in g and "rad/s" in g for g in biased.gaps)
 
 
+def test_one_bad_sample_costs_one_sample() -> None:
+    """An isolated 14-sigma sample (a glitch, a message one period late on a rough road) is no gap;
+    a burst of them, or an excursion over consecutive samples, stays in the statistics."""
+    import numpy as np
+
+    from terrain_estimation.sim2real.where import WhereSettings, _channel, despike
+
+    rng = np.random.default_rng(5)
+    sigma = 0.3
+    noise = sigma * rng.standard_normal(400)  # 4 s at 100 Hz: one sample is 0.25 % of it
+    spiked = noise.copy()
+    spiked[200] += 14 * sigma
+    zeros = np.zeros_like(noise)
+    assert _channel("x", "/x", spiked, zeros, 100.0, sigma**2, WhereSettings(spike_sigma=0.0), 1).gaps
+    rep = _channel("x", "/x", spiked, zeros, 100.0, sigma**2, WhereSettings(), 1)
+    assert not rep.gaps and rep.spikes == 1
+    cleaned, count = despike(spiked, zeros, WhereSettings())
+    assert count == 1 and abs(cleaned[200] - 0.5 * (noise[199] + noise[201])) < 1e-12
+    assert np.array_equal(cleaned[:200], noise[:200]) and np.array_equal(cleaned[201:], noise[201:])
+    # Two consecutive samples: an impact, not a glitch.
+    pair = noise.copy()
+    pair[200:202] += 14 * sigma
+    assert despike(pair, zeros, WhereSettings())[1] == 0
+    # Many isolated excursions are the data's behaviour.
+    many = noise.copy()
+    many[10:400:40] += 14 * sigma
+    assert despike(many, zeros, WhereSettings())[1] == 0
+    assert _channel("x", "/x", many, zeros, 100.0, sigma**2, WhereSettings(), 1).gaps
+
+
 def test_epoch_stamps_keep_their_spacing(tmp_path: Path) -> None:
     """Real bags carry epoch stamps (~1.7e9 s): read as float seconds they resolve only 2.4e-7 s.
 

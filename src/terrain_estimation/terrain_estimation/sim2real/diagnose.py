@@ -42,6 +42,7 @@ from terrain_estimation.sim2real.where import (
     _channel,
     _jsonable,
     _nis_report,
+    despike,
 )
 
 __all__ = ["BUILDERS", "Diagnosis", "WhereTable", "build_model", "diagnose", "supported_vehicles", "where_table"]
@@ -172,7 +173,7 @@ def where_table(model: ReplayModel, prediction: Mapping[str, FloatArray], where:
         channels.append(
             _channel(ch.name, ch.topic, meas, sim, fs, sigma[ch.name] ** 2, w, len(model.channels), ch.unit)
         )
-        residuals[ch.name] = np.interp(t_ref, t[sel], meas - sim)
+        residuals[ch.name] = np.interp(t_ref, t[sel], despike(meas, sim, w)[0] - sim)
     n_win = max(1, int(math.ceil((t_ref[-1] - start + 1e-9) / where.window))) if t_ref.size else 0
     win = []
     for i in range(n_win):

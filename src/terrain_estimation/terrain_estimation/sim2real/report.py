@@ -265,6 +265,15 @@ def diagnosis_markdown(d: Diagnosis) -> str:
             f"{ch.noise_std:.4g} | {ch.rms_ratio:.2f} | {ch.rms_threshold:.2f} | {ch.gain:.3f} | "
             f"{1000 * ch.delay:.1f} |"
         )
+    spiked = [f"{ch.name} {ch.spikes}" for ch in d.where.channels if ch.spikes]
+    if spiked:
+        lines += [
+            "",
+            f"Isolated residual spikes replaced before these statistics (one sample beyond "
+            f"{d.attribution.settings.where.spike_sigma:g} robust σ, both neighbours inside): "
+            + ", ".join(spiked)
+            + ".",
+        ]
     for ch in d.where.channels:
         if not ch.bands:
             continue
