@@ -18,6 +18,7 @@ from terrain_estimation.filters import (
     strong_tracking_predict,
     suboptimal_fading_factor,
 )
+from terrain_estimation.filters.adaptive import whitened_innovation_is_consistent
 
 
 def linear_moments(rng, n=3, p=2):
@@ -211,3 +212,33 @@ def test_noise_adaptation_law():
 def test_noise_adaptation_validation(args, kwargs, match):
     with pytest.raises(ValueError, match=match):
         adapt_noise_sqrt(*args, **kwargs)
+
+
+# -- whitened criterion (MODELS.md B.12) -------------------------------------------------------
+
+
+def test_strong_tracking_predict_with_the_whitened_criterion(pendulum_model, pendulum_run):
+    """The whitened test acts on the NIS: a tiny innovation leaves the prediction alone, a large one
+    inflates only the propagated spread, as the paper's criterion does."""
+    ukf = UnscentedKalmanFilter()
+    m, run = pendulum_model, pendulum_run
+    cfg = StrongTrackingConfig(criterion="whitened")
+    state = ukf.initial_state(run.x0, run.P0)
+    parts = ukf.propagate(state, m, run.us[0], run.dt)
+    quiet = strong_tracking_predict(ukf, state, m, run.us[0], run.dt, m.h(parts.x, run.us[0]), config=cfg)
+    assert quiet.fading_factor == 1.0
+    np.testing.assert_array_equal(quiet.state.P, parts.state().P)
+    z = m.h(parts.x, run.us[0]) + np.array([2.0, -2.0])
+    loud = strong_tracking_predict(ukf, state, m, run.us[0], run.dt, z, config=cfg)
+    assert 1.0 < loud.fading_factor <= 10.0
+    np.testing.assert_allclose(loud.state.P, loud.fading_factor * parts.P0 + parts.Q, rtol=1e-14)
+
+
+def test_paper_criterion_misses_a_small_variance_channel_the_whitened_one_catches():
+    """Two channels of very different variance (m/s² and rad/s): a 4σ innovation in the small one
+    is invisible to eᵀe ≤ γ tr(P_zz), not to eᵀP_zz⁻¹e ≤ χ²_2."""
+    P_zz = np.diag([0.1, 2.5e-5])
+    e = np.array([0.0, 4.0 * 0.005])
+    assert innovation_is_consistent(e, P_zz, 3.0)
+    assert not whitened_innovation_is_consistent(e, P_zz, 0.99)
+    assert whitened_innovation_is_consistent(np.array([0.3, 0.0]), P_zz, 0.99)

@@ -12,9 +12,28 @@ composes them around an :class:`~terrain_estimation.filters.ukf.UnscentedKalmanF
                              measurement_noise_sqrt=noise.measurement_noise_sqrt)
     V = st.V
 
+Two activation criteria and fading-factor sizes (:attr:`StrongTrackingConfig.criterion`):
+
+* ``"paper"`` (MODELS.md B.9, the reconstruction): active when
+  ``eᵀe > γ_th tr(P_zz)``, ``c = tr(N)/tr(M)``. Both sums add channels in
+  their own units (m/s² and rad/s for the skid steer), so a channel whose
+  variance is a small part of the trace never counts (MODELS.md B.12: a
+  yaw-rate bias with ν²/P_zz ≈ 7 fires it on 0 % of the steps).
+* ``"whitened"`` (MODELS.md B.12): active when the normalised innovation
+  squared ``NIS = eᵀ S⁻¹ e`` (``S = P_zz``) exceeds the χ²_p quantile of
+  probability :attr:`~StrongTrackingConfig.probability`, and
+  ``c = tr(S⁻¹ N)/tr(S⁻¹ M) = tr(L⁻¹ N L⁻ᵀ)/tr(L⁻¹ M L⁻ᵀ)`` with
+  ``S = L Lᵀ``: Zhou–Frank's factor for the whitened measurement ``L⁻¹ z``,
+  whose predicted innovation covariance is the identity. Both the test and
+  ``c`` are invariant under any invertible rescaling of the measurement
+  (``z → D z``: ``S → D S Dᵀ``, ``N → D N Dᵀ``), so every channel counts in
+  its own units.
+
 Sources: Zhou & Frank, *Fault diagnosis and fault tolerant control*, 1996
 (strong tracking filter, suboptimal fading factor), as reconstructed in
-MODELS.md B.9; the noise law is the reconstruction of MODELS.md B.10.
+MODELS.md B.9; the whitened criterion is MODELS.md B.12; the noise law is the
+reconstruction of MODELS.md B.10. Innovation-driven noise adaptation is in
+:mod:`.noise_adaptation`.
 """
 
 # ruff: noqa: N803, N806 - matrix symbols (P, S, Q, R, W, ...) of the papers
@@ -23,41 +42,68 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from functools import lru_cache
+from typing import Any, Literal
 
 import numpy as np
+from scipy.stats import chi2
 
 from .base import Array, GaussianState, StateSpaceModel
 from .kalman import check_measurement
+from .sigma_points import cholesky, solve_lower
 from .ukf import SigmaPointKalmanFilter
 
 __all__ = [
     "StrongTrackingConfig",
     "StrongTrackingPrediction",
     "NoiseAdaptation",
+    "Criterion",
+    "CRITERIA",
     "innovation_is_consistent",
+    "nis_threshold",
+    "whitened_innovation_is_consistent",
     "suboptimal_fading_factor",
+    "innovation_covariance_estimate",
+    "whiten",
     "strong_tracking_predict",
     "adapt_noise_sqrt",
 ]
 
 
+Criterion = Literal["paper", "whitened"]
+#: Activation test and fading-factor size: the paper's unwhitened traces (B.9) or whitened innovations (B.12).
+CRITERIA: tuple[str, ...] = ("paper", "whitened")
+
+
 @dataclass(frozen=True, kw_only=True)
 class StrongTrackingConfig:
-    """Parameters of the suboptimal fading factor (MODELS.md B.9).
+    """Parameters of the suboptimal fading factor (MODELS.md B.9, B.12).
 
     Args:
         rho: forgetting factor ``ρ`` of the innovation-covariance estimate,
             ``0 < ρ ≤ 1`` (the paper calls it β; renamed to avoid the UKF β).
         beta_w: weakening factor ``β_w ≥ 1``; larger values make the fading
             factor less eager (smoother, less tracking).
-        gamma_th: activation threshold ``γ_th ≥ 1``: the filter counts as
-            consistent, ``λ = 1``, while ``eᵀe ≤ γ_th tr(P_zz)``. ``None``
-            computes the fading factor at every step (plain Zhou–Frank).
+        gamma_th: activation threshold ``γ_th ≥ 1`` of the ``"paper"``
+            criterion: the filter counts as consistent, ``λ = 1``, while
+            ``eᵀe ≤ γ_th tr(P_zz)``. ``None`` computes the fading factor at
+            every step (plain Zhou–Frank).
         lambda_max: cap on ``λ`` (≥ 1); bounds the covariance inflation one
             outlier can cause.
         simplified: use ``N = V − β_w R``, ``M = P_zz − R`` (the variant common
             in STUKF code) instead of removing ``H̃ Q H̃ᵀ`` as well.
+        criterion: ``"paper"`` (B.9: ``eᵀe`` against ``γ_th tr(P_zz)``,
+            ``c = tr(N)/tr(M)``) or ``"whitened"`` (B.12: ``NIS = eᵀS⁻¹e``
+            against the χ²_p quantile of ``probability``,
+            ``c = tr(S⁻¹N)/tr(S⁻¹M)``). ``None`` (default) lets the user of
+            the config choose: :func:`suboptimal_fading_factor` reads it as
+            ``"paper"``; :class:`~.an_stukf.AdaptiveStrongTrackingUKF` as
+            ``"paper"`` for the paper's variants and ``"whitened"`` for the
+            innovation-adaptive ones.
+        probability: χ²_p probability of the ``"whitened"`` activation test,
+            in (0, 1): on consistent innovations the fading factor is
+            computed on a fraction ``1 − probability`` of the steps. ``None``
+            computes it at every step.
     """
 
     rho: float = 0.95
@@ -65,6 +111,8 @@ class StrongTrackingConfig:
     gamma_th: float | None = 3.0
     lambda_max: float = 10.0
     simplified: bool = False
+    criterion: Criterion | None = None
+    probability: float | None = 0.99
 
     def __post_init__(self) -> None:
         if not (0.0 < self.rho <= 1.0):
@@ -75,6 +123,10 @@ class StrongTrackingConfig:
             raise ValueError(f"gamma_th must be None or finite and >= 1, got {self.gamma_th}")
         if not (math.isfinite(self.lambda_max) and self.lambda_max >= 1.0):
             raise ValueError(f"lambda_max must be finite and >= 1, got {self.lambda_max}")
+        if self.criterion is not None and self.criterion not in CRITERIA:
+            raise ValueError(f"criterion must be None or one of {CRITERIA}, got {self.criterion!r}")
+        if self.probability is not None and not (0.0 < self.probability < 1.0):
+            raise ValueError(f"probability must be None or in (0, 1), got {self.probability}")
 
 
 def innovation_is_consistent(innovation: Array, P_zz: Array, gamma_th: float) -> bool:
@@ -93,6 +145,46 @@ def innovation_is_consistent(innovation: Array, P_zz: Array, gamma_th: float) ->
     return bool(e @ e <= gamma_th * float(np.asarray(P_zz, dtype=float).trace()))
 
 
+@lru_cache(maxsize=256)
+def nis_threshold(p: int, probability: float) -> float:
+    """χ²_p quantile of ``probability``: the NIS bound of a consistent innovation (cached).
+
+    Args:
+        p: measurement dimension ``≥ 1`` (degrees of freedom).
+        probability: in (0, 1).
+
+    Raises:
+        ValueError: on ``p < 1`` or a probability outside (0, 1).
+    """
+    if int(p) != p or p < 1:
+        raise ValueError(f"p must be a positive integer, got {p!r}")
+    if not (0.0 < probability < 1.0):
+        raise ValueError(f"probability must be in (0, 1), got {probability}")
+    return float(chi2.ppf(probability, int(p)))
+
+
+def whitened_innovation_is_consistent(innovation: Array, P_zz: Array, probability: float) -> bool:
+    """Whitened activation test (MODELS.md B.12): ``eᵀ P_zz⁻¹ e ≤ χ²_p(probability)``.
+
+    Args:
+        innovation: ``e = z − ẑ`` ``(p,)``.
+        P_zz: predicted innovation covariance ``(p, p)``, positive definite.
+        probability: χ²_p probability in (0, 1).
+
+    Returns:
+        True while the NIS is within the quantile. A ``P_zz`` that is not
+        positive definite gives False (the NIS is infinite).
+    """
+    e = np.asarray(innovation, dtype=float)
+    try:
+        L = cholesky(np.asarray(P_zz, dtype=float))
+    except np.linalg.LinAlgError:
+        return False
+    w = solve_lower(L, e)
+    nis = float(w @ w)
+    return bool(nis <= nis_threshold(e.shape[0], probability))
+
+
 def suboptimal_fading_factor(
     innovation: Array,
     P_zz: Array,
@@ -103,18 +195,22 @@ def suboptimal_fading_factor(
     V_prev: Array | None,
     config: StrongTrackingConfig | None = None,
 ) -> tuple[float, Array]:
-    """Suboptimal fading factor ``λ_k ≥ 1`` (Zhou–Frank 1996; MODELS.md B.9).
+    """Suboptimal fading factor ``λ_k ≥ 1`` (Zhou–Frank 1996; MODELS.md B.9, B.12).
 
-    Equations (``e_k = z_k − ẑ_k``)::
+    Equations (``e_k = z_k − ẑ_k``, ``S = P_zz = L Lᵀ``)::
 
         V_1 = e_1 e_1ᵀ;   V_k = (ρ V_{k−1} + e_k e_kᵀ) / (1 + ρ)
         H̃   = P_xzᵀ P̄⁻¹                    (statistical linearisation of h)
         N_k = V_k − β_w R_k − H̃ Q_k H̃ᵀ
         M_k = P_zz − R_k − H̃ Q_k H̃ᵀ        (≈ H F P Fᵀ Hᵀ)
-        c_k = tr(N_k) / tr(M_k);   λ_k = min(max(1, c_k), λ_max)
+        "paper":     c_k = tr(N_k) / tr(M_k)
+        "whitened":  c_k = tr(L⁻¹ N_k L⁻ᵀ) / tr(L⁻¹ M_k L⁻ᵀ) = tr(S⁻¹ N_k) / tr(S⁻¹ M_k)
+        λ_k = min(max(1, c_k), λ_max)
 
-    ``λ_k = 1`` when the activation test :func:`innovation_is_consistent`
-    passes, when ``tr(M_k) ≤ 0`` (the propagated spread carries no
+    ``λ_k = 1`` when the activation test passes (``"paper"``:
+    :func:`innovation_is_consistent`; ``"whitened"``: ``eᵀS⁻¹e ≤ χ²_p``,
+    :func:`whitened_innovation_is_consistent`), when the denominator is
+    ``≤ 0`` (the propagated spread carries no
     information to rescale) or when ``c_k`` is not finite. ``V_k`` is updated
     at every step, active or not: it is a running estimate of the innovation
     covariance and would go stale if it were frozen while the filter is
@@ -129,26 +225,24 @@ def suboptimal_fading_factor(
         R: measurement noise covariance ``(p, p)``.
         Q: process noise covariance of the step ``(n, n)``.
         V_prev: previous ``V_{k−1}`` ``(p, p)``, or ``None`` at the first step.
-        config: ``ρ, β_w, γ_th, λ_max`` and the variant; defaults of B.9.
+        config: ``ρ, β_w, γ_th, λ_max``, the variant and the criterion;
+            defaults of B.9 (criterion ``None`` reads as ``"paper"``).
 
     Returns:
         ``(λ_k, V_k)``.
     """
     cfg = config if config is not None else StrongTrackingConfig()
     e = np.asarray(innovation, dtype=float)
-    ee = e[:, None] * e  # e eᵀ
-    V = ee if V_prev is None else (cfg.rho * np.asarray(V_prev, dtype=float) + ee) / (1.0 + cfg.rho)
+    V = innovation_covariance_estimate(e, V_prev, cfg.rho)
+    if cfg.criterion == "whitened":
+        S = np.asarray(P_zz, dtype=float)
+        return _whitened_fading_factor(e, V, S, P_xz, P_pred, R, Q, cfg, whiten(S, e)), V
     if cfg.gamma_th is not None and innovation_is_consistent(e, P_zz, cfg.gamma_th):
         return 1.0, V
     N = V - cfg.beta_w * R
     M = P_zz - R
     if not cfg.simplified:
-        try:
-            H_t = np.linalg.solve(P_pred, P_xz)  # H̃ᵀ = P̄⁻¹ P_xz (P̄ symmetric)
-        except np.linalg.LinAlgError:
-            # P̄ singular: the least-squares H̃ is the natural linearisation on its range.
-            H_t = np.linalg.lstsq(P_pred, P_xz, rcond=None)[0]
-        HQH = H_t.T @ Q @ H_t
+        HQH = _hqh(P_xz, P_pred, Q)
         N = N - HQH
         M = M - HQH
     tr_m = float(np.trace(M))
@@ -158,6 +252,81 @@ def suboptimal_fading_factor(
     if not math.isfinite(c):
         return 1.0, V
     return min(max(1.0, c), cfg.lambda_max), V
+
+
+def _hqh(P_xz: Array, P_pred: Array, Q: Array) -> Array:
+    """``H̃ Q H̃ᵀ`` with ``H̃ = P_xzᵀ P̄⁻¹`` (least squares when ``P̄`` is singular)."""
+    try:
+        H_t = np.linalg.solve(P_pred, P_xz)  # H̃ᵀ = P̄⁻¹ P_xz (P̄ symmetric)
+    except np.linalg.LinAlgError:
+        # P̄ singular: the least-squares H̃ is the natural linearisation on its range.
+        H_t = np.linalg.lstsq(P_pred, P_xz, rcond=None)[0]
+    return np.asarray(H_t.T @ Q @ H_t, dtype=float)
+
+
+def innovation_covariance_estimate(e: Array, V_prev: Array | None, rho: float) -> Array:
+    """``V_k = (ρ V_{k−1} + e eᵀ)/(1 + ρ)``, ``V_1 = e eᵀ`` (Zhou–Frank's running estimate, B.9)."""
+    ee = e[:, None] * e  # e eᵀ
+    return ee if V_prev is None else (rho * np.asarray(V_prev, dtype=float) + ee) / (1.0 + rho)
+
+
+@lru_cache(maxsize=16)
+def _identity(p: int) -> Array:
+    """A read-only ``(p, p)`` identity (``np.eye`` once per dimension, not once per step)."""
+    eye = np.eye(p)
+    eye.setflags(write=False)
+    return eye
+
+
+def whiten(S: Array, e: Array) -> tuple[Array, Array] | None:
+    """``(W, w) = (L⁻¹, L⁻¹ e)`` with ``S = L Lᵀ`` (one Cholesky, one triangular solve).
+
+    ``NIS = wᵀw``, ``S⁻¹ = WᵀW`` and ``tr(S⁻¹ X) = tr(W X Wᵀ) = Σ_ij (W X)_ij W_ij``;
+    ``S`` is never inverted as a whole. ``None`` when ``S`` is not positive definite.
+    """
+    p = e.shape[0]
+    try:
+        L = cholesky(S)
+    except np.linalg.LinAlgError:
+        return None
+    rhs = np.empty((p, p + 1))
+    rhs[:, :p] = _identity(p)
+    rhs[:, p] = e
+    sol = solve_lower(L, rhs)
+    return sol[:, :p], sol[:, p]
+
+
+def _whitened_fading_factor(
+    e: Array,
+    V: Array,
+    S: Array,
+    P_xz: Array,
+    P_pred: Array,
+    R: Array,
+    Q: Array,
+    cfg: StrongTrackingConfig,
+    whitened: tuple[Array, Array] | None,
+) -> float:
+    """``λ_k`` of the ``"whitened"`` criterion (B.12) once ``V_k`` and ``whiten(S, e)`` are known."""
+    if whitened is None:
+        return 1.0  # S not positive definite: the update's NIS is infinite and it rejects anyway.
+    W, w = whitened
+    p = e.shape[0]
+    if cfg.probability is not None and float(w @ w) <= nis_threshold(p, cfg.probability):
+        return 1.0
+    N = V - cfg.beta_w * R
+    M = S - R
+    if not cfg.simplified:
+        HQH = _hqh(P_xz, P_pred, Q)
+        N = N - HQH
+        M = M - HQH
+    tr_m = float(((W @ M) * W).sum())  # tr(L⁻¹ M L⁻ᵀ)
+    if not tr_m > 0.0:
+        return 1.0
+    c = float(((W @ N) * W).sum()) / tr_m
+    if not math.isfinite(c):
+        return 1.0
+    return min(max(1.0, c), cfg.lambda_max)
 
 
 @dataclass(frozen=True)
