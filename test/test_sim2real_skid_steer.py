@@ -20,14 +20,15 @@ from terrain_estimation.sim2real.skid_steer import (
 )
 from terrain_estimation.sim2real.where import Sim2RealError
 from vehicle_sim.effects import CATALOGUE, effects_for
-from vehicle_sim.plants.skid_steer import MANOEUVRES, SkidSteerSensors, simulate_skid_steer
+from vehicle_sim.plants.skid_steer import MANOEUVRES, SkidSteerSensors, SkidSteerVehicle, simulate_skid_steer
 
 VEHICLE = vehicle_from_config()
 WARMUP = 1.0
 
 
 def _simulate(manoeuvre: str, effects: dict, duration: float = 8.0, seed: int = 3, sensors=None):
-    scenario = MANOEUVRES[manoeuvre](effects=effects_for("skid_steer", effects))
+    # The nominal model's vehicle (brush tire): these bags hold only the catalogue's effects.
+    scenario = MANOEUVRES[manoeuvre](vehicle=SkidSteerVehicle(), effects=effects_for("skid_steer", effects))
     if sensors is not None:
         scenario = replace(scenario, sensors=sensors)
     return simulate_skid_steer(replace(scenario, duration=duration), seed)

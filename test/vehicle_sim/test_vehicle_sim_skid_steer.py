@@ -10,10 +10,7 @@ from scipy.optimize import brentq
 from terrain_estimation.models.skid_steer import (
     SkidSteerParams,
     brush_tire_forces,
-    contact_velocities,
     quasi_static_loads,
-    theoretical_slips,
-    tire_sideslip_angles,
 )
 from vehicle_sim.plants.skid_steer import (
     MANOEUVRES,
@@ -145,10 +142,16 @@ def test_effect_sets():
     assert SkidSteerEffects.nominal().active == ()
     assert SkidSteerEffects.truth_default().active == ("load_transfer_dynamics", "tire_relaxation")
     assert SkidSteerScenario(manoeuvre=Manoeuvre(name="m", duration=1.0)).effects == SkidSteerEffects.nominal()
+    assert SkidSteerScenario(manoeuvre=Manoeuvre(name="m", duration=1.0)).vehicle.tire_law == "brush"
     for name, build in MANOEUVRES.items():
         scenario = build()
         assert scenario.manoeuvre.name == name
         assert scenario.effects == SkidSteerEffects.truth_default()
+        # The truth runs the plant's own tire whatever the effects; the brush is asked for by name.
+        assert scenario.vehicle == SkidSteerVehicle.truth_default()
+        assert scenario.vehicle.tire_law == "magic_formula"
+        assert build(effects=SkidSteerEffects.nominal()).vehicle.tire_law == "magic_formula"
+        assert build(vehicle=SkidSteerVehicle(), effects=SkidSteerEffects.nominal()).vehicle.tire_law == "brush"
     assert {name: build().run_duration for name, build in MANOEUVRES.items()} == {
         "straight_acceleration": 20.0,
         "small_radius_turn": 45.0,
@@ -254,7 +257,8 @@ def tilt_corrected_quasi_static_loads(truth, mask):
 def test_settled_dynamic_loads_reproduce_the_quasi_static_formula(turn):
     window = turn.window(20.0, 40.0)
     truth = turn.truth
-    np.testing.assert_allclose(truth.normal_load[window], tilt_corrected_quasi_static_loads(truth, window), rtol=1e-7)
+    # The roll/pitch transient of the turn entry has decayed to ≤ 3e-7 of the loads by 20 s (magic-formula truth).
+    np.testing.assert_allclose(truth.normal_load[window], tilt_corrected_quasi_static_loads(truth, window), rtol=5e-7)
     # The tilt term is real but small next to B.5.
     plain = quasi_static_loads(truth.specific_force_x[window], truth.specific_force_y[window], P)
     difference = np.abs(truth.normal_load[window] - plain).max()
@@ -278,7 +282,7 @@ def test_dynamic_loads_lag_the_acceleration(straight):
     actual_front = truth.normal_load[:, 0] - truth.normal_load[0, 0]
     # 50 ms after the acceleration starts the springs have passed on only part of the transfer ...
     early = np.argmin(np.abs(straight.t - 1.05))
-    assert transfer_front[early] < -100.0
+    assert transfer_front[early] < -80.0
     assert abs(actual_front[early]) < 0.8 * abs(transfer_front[early])
     # ... in the steady acceleration they have caught up.
     steady = straight.window(4.0, 8.0)
@@ -300,38 +304,6 @@ def test_quasi_static_loads_follow_the_acceleration_without_load_dynamics():
 
 
 # --- tires ----------------------------------------------------------------------
-
-
-def test_truth_forces_are_the_shared_brush_model_of_the_true_parameters():
-    effects = SkidSteerEffects(friction_change=0.5, cornering_stiffness_change=1.3)
-    result = simulate_skid_steer(constant_torque(-60.0, 120.0, duration=2.0, effects=effects, sensors=QUIET), 0)
-    truth = result.truth
-    true_params = effects.true_params(P)
-    cvx, cvy = contact_velocities(truth.vx, truth.vy, truth.yaw_rate, P)
-    np.testing.assert_allclose(truth.tire_sideslip, tire_sideslip_angles(cvx, cvy), rtol=1e-12, atol=1e-15)
-    sigma_x, sigma_y = theoretical_slips(truth.wheel_speed, cvx, cvy, true_params)
-
-    def brush(params):
-        return brush_tire_forces(
-            sigma_x,
-            sigma_y,
-            truth.normal_load,
-            longitudinal_stiffness=params.longitudinal_stiffness,
-            cornering_stiffness=params.cornering_stiffness,
-            friction=params.friction,
-        )
-
-    fx, fy = brush(true_params)
-    np.testing.assert_allclose(truth.tire_force_x, fx, rtol=1e-9, atol=1e-6)
-    np.testing.assert_allclose(truth.tire_force_y, fy, rtol=1e-9, atol=1e-6)
-    assert not np.allclose(brush(P)[1], fy, rtol=1e-3)
-    # Turning on the spot saturates tires at the changed friction, never beyond.
-    utilisation = np.hypot(fx, fy) / truth.normal_load
-    assert utilisation.max() == pytest.approx(0.5 * P.friction, rel=1e-9)
-    # The sums of the forces drive the body (body_forces).
-    net = truth.tire_force_x - truth.motion_resistance
-    np.testing.assert_allclose(truth.specific_force_x * P.mass, net.sum(axis=1), rtol=1e-9, atol=1e-6)
-    np.testing.assert_allclose(truth.specific_force_y * P.mass, truth.tire_force_y.sum(axis=1), rtol=1e-9, atol=1e-6)
 
 
 def test_tire_relaxation_lags_the_steady_forces(turn):

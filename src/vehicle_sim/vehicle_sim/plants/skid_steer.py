@@ -15,17 +15,30 @@ model proves nothing):
   and effects"): sprung-mass roll/pitch dynamics that make the vertical loads
   come from suspension forces and lag the accelerations, first-order tire
   force relaxation, sensor biases and delay, wrong rolling radius, friction
-  and cornering-stiffness changes, a road grade.
+  and cornering-stiffness changes, a road grade;
+* a tire law of its own (:mod:`vehicle_sim.plants.tire_laws`,
+  ``SkidSteerVehicle.tire_law``): the truth (:meth:`SkidSteerVehicle.truth_default`,
+  the manoeuvre builders' default vehicle) runs a
+  combined-slip magic-formula tire with load-dependent stiffness and
+  friction; ``"brush"`` keeps the paper's idealised law (the dataclass default,
+  i.e. the nominal model of the sim-to-real catalogue);
+* a ground of its own (:mod:`vehicle_sim.plants.skid_steer_ground`,
+  ``SkidSteerScenario.ground``): a plane with grade and cross slope, and
+  terrain patches changing μ, tire stiffness and rolling resistance under each
+  wheel.
 
-The shared physics is imported from ``terrain_estimation.models.skid_steer``
-(kinematics, brush tire, quasi-static loads, slips, ICR), never re-derived
-here, so the plant and the observer differ only by what this module adds.
+Only geometry and kinematics are shared with the observer
+(``terrain_estimation.models.skid_steer``: contact velocities, wheel
+positions, the brush model's theoretical slips, force sums, slip ratio, ICR);
+force laws (tires, loads) are the plant's own.
 
 State (26 values, SI units)
-    pose ``x, y, yaw`` in the odom frame; body-frame ``vx, vy, r``; wheel-side
-    speeds ``ω_l, ω_r`` and wheel angles (rad); sprung-mass ``roll, roll rate,
-    pitch, pitch rate``; lagged tire forces ``F_x`` (6) and ``F_y`` (6) (used
-    only with tire relaxation). Wheel order FL, ML, RL, FR, MR, RR.
+    pose ``x, y, yaw`` in the odom frame (the ground plane's axes on a slope);
+    body-frame ``vx, vy, r``; wheel-side speeds ``ω_l, ω_r`` and wheel angles
+    (rad); sprung-mass ``roll, roll rate, pitch, pitch rate``; lagged tire
+    forces ``F_x`` (6) and ``F_y`` (6) (used only with tire relaxation; on a
+    slope ``F_y`` starts holding the vehicle against it). Wheel order FL, ML,
+    RL, FR, MR, RR.
 
 Integration
     Classical fixed-step RK4; motor torques are held over the 10 ms sensor
@@ -41,7 +54,11 @@ Integration
     right after a step in acceleration, zero in steady states. Starting from
     rest with large torques (slips saturating within milliseconds) the errors
     reach 3e-5 m/s in speed and 0.05 % in wheel speed for a moment; a 1 ms
-    step (``SkidSteerScenario.integration_step``) cuts them twentyfold.
+    step (``SkidSteerScenario.integration_step``) cuts them twentyfold. With
+    the magic-formula truth (12 s of each manoeuvre against 0.25 ms steps):
+    |Δvx| ≤ 1.7e-5 m/s (from rest), |Δr| ≤ 2e-9 rad/s, |Δα| ≤ 3e-9 rad,
+    |ΔF_z| ≤ 0.04 N; the torque step from rest 3e-5 m/s and 0.02 % in wheel
+    speed.
     Without tire relaxation the slip equations become stiff at low rolling
     speed (the slip denominator V_r shrinks to ε = 0.05 m/s), so the number
     of steps of a period is raised until ``λ_max Δt ≤ 2`` for a bound
@@ -74,15 +91,15 @@ from terrain_estimation.models.skid_steer import (
     SkidSteerParams,
     body_forces,
     body_sideslip,
-    brush_tire_forces,
     contact_velocities,
     instantaneous_centre_of_rotation,
-    quasi_static_loads,
     side_slip_ratios,
     theoretical_slips,
     tire_sideslip_angles,
     wheel_positions,
 )
+from vehicle_sim.plants.skid_steer_ground import GroundContact, SkidSteerGround, Surface, equal_spring_loads
+from vehicle_sim.plants.tire_laws import TIRE_LAWS, MagicFormulaTire, MagicFormulaWheels, brush_forces
 
 __all__ = [
     "WHEEL_NAMES",
@@ -187,6 +204,12 @@ class SkidSteerVehicle:
             typically 1–2 tire radii.
         relaxation_speed_floor: lowest speed in the lag rate V/L (m/s): the
             lag stays finite at standstill instead of freezing the forces.
+        tire_law: ``"brush"`` (the paper's idealised law, MODELS.md B.4: the
+            nominal model, default) or ``"magic_formula"`` (the plant's own
+            tire, :mod:`vehicle_sim.plants.tire_laws`; :meth:`truth_default`).
+        magic_formula: shape, load sensitivity and low-speed floor of the
+            magic-formula tire; its stiffnesses at the nominal wheel load
+            m g / 6 are ``nominal``'s C_x and C_α (with the effects' changes).
     """
 
     nominal: SkidSteerParams = field(default_factory=SkidSteerParams)
@@ -208,11 +231,17 @@ class SkidSteerVehicle:
     longitudinal_relaxation_length: float = 0.3
     lateral_relaxation_length: float = 0.5
     relaxation_speed_floor: float = 0.3
+    tire_law: str = "brush"
+    magic_formula: MagicFormulaTire = field(default_factory=MagicFormulaTire)
 
     def __post_init__(self) -> None:
         owner = "SkidSteerVehicle"
         if not isinstance(self.nominal, SkidSteerParams):
             raise ValueError(f"{owner}.nominal must be a SkidSteerParams, got {self.nominal!r}")
+        if self.tire_law not in TIRE_LAWS:
+            raise ValueError(f"{owner}.tire_law must be one of {', '.join(TIRE_LAWS)}, got {self.tire_law!r}")
+        if not isinstance(self.magic_formula, MagicFormulaTire):
+            raise ValueError(f"{owner}.magic_formula must be a MagicFormulaTire, got {self.magic_formula!r}")
         for name in (
             "wheel_inertia",
             "motor_torque_limit",
@@ -265,6 +294,20 @@ class SkidSteerVehicle:
                 f"{owner}.pitch_stiffness must exceed the gravity de-stiffening m_s g (H_s − h_pc) = "
                 f"{self.sprung_mass * g * self.pitch_arm:.1f} N·m/rad, got {self.pitch_stiffness}"
             )
+
+    @classmethod
+    def truth_default(cls, **changes: Any) -> SkidSteerVehicle:
+        """The truth of the estimator tests: this vehicle on the plant's own magic-formula tire.
+
+        Args:
+            changes: other fields (as for the constructor).
+        """
+        return cls(**{"tire_law": "magic_formula", **changes})
+
+    @property
+    def nominal_wheel_load(self) -> float:
+        """F_z0 = m g / 6 (N): the load at which the magic formula's stiffnesses are the datasheet's."""
+        return self.nominal.mass * self.nominal.gravity / 6.0
 
     # --- derived masses and geometry --------------------------------------
 
@@ -345,10 +388,13 @@ class SkidSteerEffects:
     """Unmodelled effects of the sim-to-real catalogue, each switchable, all off by default.
 
     The default instance (:meth:`nominal`) is the vehicle's nominal physics:
-    quasi-static loads (B.5), instantaneous brush forces (B.4), perfect
+    quasi-static loads (B.5), instantaneous forces of the vehicle's tire law
+    (the brush of B.4 for the nominal :class:`SkidSteerVehicle`), perfect
     sensors apart from noise. :meth:`truth_default` is the truth plant of the
     estimator test ([SS] ISSUE: "at least body roll/pitch load-transfer
-    dynamics and tire force lag").
+    dynamics and tire force lag"), with :meth:`SkidSteerVehicle.truth_default`
+    (the plant's own magic-formula tire). The tire law and the ground are not
+    effects of the catalogue: they belong to the vehicle and the scenario.
 
     Attributes:
         load_transfer_dynamics: sprung-mass roll and pitch dynamics; the loads
@@ -628,9 +674,10 @@ class Manoeuvre:
 class SkidSteerScenario:
     """One run: manoeuvre, vehicle, effects, sensors, driver, timing.
 
-    Defaults to the nominal physics (all effects off, CONTRACT.md); the
-    manoeuvre builders (:data:`MANOEUVRES`) switch on
-    :meth:`SkidSteerEffects.truth_default` for the estimator tests and say so.
+    Defaults to the nominal physics (all effects off, brush tire, level
+    uniform ground, CONTRACT.md); the manoeuvre builders (:data:`MANOEUVRES`)
+    switch on :meth:`SkidSteerEffects.truth_default` and
+    :meth:`SkidSteerVehicle.truth_default` for the estimator tests and say so.
 
     Attributes:
         manoeuvre: what the driver does.
@@ -638,6 +685,7 @@ class SkidSteerScenario:
         effects: unmodelled effects switched on.
         sensors: sensor models.
         driver: the feedback driver.
+        ground: slope and terrain patches (:mod:`vehicle_sim.plants.skid_steer_ground`).
         duration: simulated time (s); None takes the manoeuvre's.
         sensor_rate: IMU and joint-state rate (Hz); one
             :meth:`SkidSteerSimulator.step` per period.
@@ -654,9 +702,12 @@ class SkidSteerScenario:
     duration: float | None = None
     sensor_rate: float = 100.0
     integration_step: float = 2.0e-3
+    ground: SkidSteerGround = field(default_factory=SkidSteerGround)
 
     def __post_init__(self) -> None:
         owner = "SkidSteerScenario"
+        if not isinstance(self.ground, SkidSteerGround):
+            raise ValueError(f"{owner}.ground must be a SkidSteerGround, got {self.ground!r}")
         if self.duration is not None:
             _check_positive(owner, "duration", self.duration)
         _check_positive(owner, "sensor_rate", self.sensor_rate)
@@ -697,9 +748,12 @@ def _scenario(
     sensors: SkidSteerSensors | None,
     driver: SkidSteerDriver | None,
 ) -> SkidSteerScenario:
+    """The builders' defaults: the truth's vehicle (magic-formula tire) and, without ``effects``, its effects."""
+    if vehicle is None:
+        vehicle = SkidSteerVehicle.truth_default()
     return SkidSteerScenario(
         manoeuvre=manoeuvre,
-        vehicle=SkidSteerVehicle() if vehicle is None else vehicle,
+        vehicle=vehicle,
         effects=SkidSteerEffects.truth_default() if effects is None else effects,
         sensors=SkidSteerSensors() if sensors is None else sensors,
         driver=SkidSteerDriver() if driver is None else driver,
@@ -719,7 +773,10 @@ def straight_acceleration(
 ) -> SkidSteerScenario:
     """[SS] straight run (B.11): standstill, then 0 → 30 km/h at 1 m/s², then hold.
 
-    Effects default to :meth:`SkidSteerEffects.truth_default` (estimator test).
+    Defaults: the truth of the estimator tests, :meth:`SkidSteerVehicle.truth_default`
+    (magic-formula tire) and, without ``effects``, :meth:`SkidSteerEffects.truth_default`.
+    A sim-to-real experiment on the nominal model passes ``vehicle=SkidSteerVehicle()``
+    (brush tire) with its effects.
     With the defaults the speed reference reaches 30 km/h at 9.3 s and holds
     it to 20 s.
     """
@@ -747,8 +804,8 @@ def small_radius_turn(
 
     Standstill to 1 s, speed ramp at 0.5 m/s², straight run-in to 6 s, yaw
     rate ramped to its final value over 6–8 s and held to the end (the
-    paper's analysis window is 20–40 s). Effects default to
-    :meth:`SkidSteerEffects.truth_default`.
+    paper's analysis window is 20–40 s). Vehicle and effects default as for
+    :func:`straight_acceleration` (the truth when no effects are given).
     """
     manoeuvre = Manoeuvre(
         name="small_radius_turn",
@@ -776,8 +833,8 @@ def s_shape(
 
     Starts rolling at 30 km/h; yaw-rate reference 0.15 sin(2π t / 10 s) rad/s
     (radius ≥ 55 m, lateral acceleration ≤ 1.25 m/s²), so 20–25 s (the
-    paper's window) is one whole left lobe. Effects default to
-    :meth:`SkidSteerEffects.truth_default`.
+    paper's window) is one whole left lobe. Vehicle and effects default as
+    for :func:`straight_acceleration` (the truth when no effects are given).
     """
     manoeuvre = Manoeuvre(
         name="s_shape",
@@ -803,7 +860,8 @@ def constant_torque(
 ) -> SkidSteerScenario:
     """Open-loop constant motor torques (N·m, motor side), no driver: for checks and diagnosis.
 
-    Unlike the paper manoeuvres, effects default to :meth:`SkidSteerEffects.nominal`.
+    Unlike the paper manoeuvres, effects default to :meth:`SkidSteerEffects.nominal`
+    and the vehicle to the nominal :class:`SkidSteerVehicle` (brush tire).
     """
     manoeuvre = Manoeuvre(
         name="constant_torque",
@@ -881,10 +939,13 @@ class SkidSteerTruth:
         normal_load: F_z per wheel (N), (6,).
         tire_force_x, tire_force_y: tire forces acting (N), (6,) (lagged with
             relaxation).
-        steady_tire_force_x, steady_tire_force_y: brush forces F_ss for the
-            current slips (N), (6,); equal to the acting forces without relaxation.
+        steady_tire_force_x, steady_tire_force_y: forces F_ss of the tire law
+            for the current slips (N), (6,); equal to the acting forces without
+            relaxation.
         motion_resistance: rolling resistance per wheel (N), (6,), opposing
             the contact's longitudinal velocity.
+        friction: μ of the surface under each wheel (6,) (effects and patches
+            included; the magic formula lowers it further with load).
         specific_force_x, specific_force_y: ground force / m in the road frame
             (m/s²); on level ground the CM accelerations v̇x − vy r, v̇y + vx r.
         roll, pitch: sprung-mass attitude relative to the road (rad; roll > 0
@@ -913,6 +974,7 @@ class SkidSteerTruth:
     steady_tire_force_x: Any
     steady_tire_force_y: Any
     motion_resistance: Any
+    friction: Any
     specific_force_x: Any
     specific_force_y: Any
     roll: Any
@@ -1010,10 +1072,12 @@ class _Evaluation:
     steady_tire_force_x: Array
     steady_tire_force_y: Array
     motion_resistance: Array
+    friction: Array
     contact_vx: Array
     contact_vy: Array
     specific_force_x: float
     specific_force_y: float
+    normal_gravity: float
 
 
 class _EquationsOfMotion:
@@ -1021,17 +1085,22 @@ class _EquationsOfMotion:
 
     ::
 
-        m (v̇x − vy r) = Σ (F_x − F_rr) − m g sin γ            (B.6, grade, motion resistance)
-        m (v̇y + vx r) = Σ F_y
+        m (v̇x − vy r) = Σ (F_x − F_rr) + m g_bx                (B.6, gravity, motion resistance)
+        m (v̇y + vx r) = Σ F_y + m g_by
         I_z ṙ         = Σ x_i F_y − y_j (F_x − F_rr)
         I_side ω̇_j    = η i_g T_m,j − R Σ_i F_x,ij            (B.6 wheel-side dynamics)
-        I_φ φ̈ = m_s f_y (H_s − h_rc) + m_s g cos γ (H_s − h_rc) sin φ − K_φ φ − C_φ φ̇
-        I_θ θ̈ = −m_s f_x (H_s − h_pc) + m_s g cos γ (H_s − h_pc) sin θ − K_θ θ − C_θ θ̇
+        I_φ φ̈ = m_s f_y (H_s − h_rc) + m_s g_n (H_s − h_rc) sin φ − K_φ φ − C_φ φ̇
+        I_θ θ̈ = −m_s f_x (H_s − h_pc) + m_s g_n (H_s − h_pc) sin θ − K_θ θ − C_θ θ̇
         Ḟ = (V/L)(F_ss − F),   V = max(R|ω|, |v_contact|, V_floor)       (relaxation)
 
-    f = Σ ground forces / m is the specific force of the road frame. Loads:
-    quasi-static (B.5) as ``F_z = F_z0 cos γ + ∂F_z/∂a_x f_x + ∂F_z/∂a_y f_y``
-    (the exact affine decomposition of :func:`quasi_static_loads`), or, with
+    f = Σ ground forces / m is the specific force of the road frame; g_bx,
+    g_by, g_n are gravity along body x, y and normal to the ground
+    (:class:`~vehicle_sim.plants.skid_steer_ground.GroundContact`: ``−g sin γ,
+    0, g cos γ`` for the effect ``terrain_grade`` γ on a level plane). F, F_ss
+    come from the vehicle's tire law with μ, stiffness scale and f_rr of the
+    surface under each wheel. Loads:
+    quasi-static (B.5) as ``F_z = F_z0 g_n/g + ∂F_z/∂a_x f_x + ∂F_z/∂a_y f_y``
+    (the exact affine decomposition of the equal-spring loads), or, with
     load-transfer dynamics, the static loads plus the roll and pitch moments
     through the suspension springs/dampers (``∓(K φ + C φ̇)``), the links at the
     roll/pitch centres (``m_s f h_c``, instantaneous) and the unsprung masses
@@ -1047,6 +1116,7 @@ class _EquationsOfMotion:
         p = self.params
         self.load_dynamics = effects.load_transfer_dynamics
         self.relaxation = effects.tire_relaxation
+        self.magic_formula = vehicle.tire_law == "magic_formula"
         self.mass = p.mass
         self.yaw_inertia = p.yaw_inertia
         self.radius = p.wheel_radius
@@ -1073,11 +1143,16 @@ class _EquationsOfMotion:
         self.force_map = np.vstack(body_forces(unit[:, :6], unit[:, 6:], p))  # (3, 12): (F_x, F_y) → (ΣF_x, ΣF_y, M_z)
         self.side_map = np.kron(np.eye(2), np.ones(3))  # (2, 6): per-wheel → per-side sums
 
-        # Loads: exact affine decomposition of B.5 (quasi_static_loads is affine in g, a_x, a_y before its floor).
+        # Loads: exact affine decomposition of B.5 (the equal-spring loads are affine in g, a_x, a_y before the floor).
         cos_grade = math.cos(effects.terrain_grade)
-        static = quasi_static_loads(0.0, 0.0, nominal)
-        self.static_load = static * cos_grade
         xw, yw = wheel_positions(nominal)
+
+        def quasi_static_loads(f_x: float, f_y: float) -> Array:
+            return equal_spring_loads(xw[:3], nominal.track, nominal.mass, nominal.gravity, nominal.cg_height, f_x, f_y)
+
+        static = quasi_static_loads(0.0, 0.0)
+        self.static_load = static * cos_grade
+        self.static_load_per_gravity = static / nominal.gravity
         # Unit moment distributions: Σ u = 0, Σ y u_roll = 1, Σ x u_pitch = 1 (equal springs, rigid body).
         self.roll_unit = yw / float(np.sum(yw**2))
         x_dev = xw - xw.mean()
@@ -1091,25 +1166,45 @@ class _EquationsOfMotion:
             self.load_per_fx = -(m_s * vehicle.pitch_centre_height + m_u * radius) * self.pitch_unit
             self.load_per_fy = -(m_s * vehicle.roll_centre_height + m_u * radius) * self.roll_unit
         else:
-            self.load_per_fx = quasi_static_loads(1.0, 0.0, nominal) - static
-            self.load_per_fy = quasi_static_loads(0.0, 1.0, nominal) - static
+            self.load_per_fx = quasi_static_loads(1.0, 0.0) - static
+            self.load_per_fy = quasi_static_loads(0.0, 1.0) - static
         self.roll_drive = m_s * vehicle.roll_arm
         self.pitch_drive = m_s * vehicle.pitch_arm
         self.roll_axis_inertia = vehicle.roll_axis_inertia
         self.pitch_axis_inertia = vehicle.pitch_axis_inertia
 
-        # Bound on the fastest tire mode without relaxation, times the rolling speed V_r (1/s · m/s).
+        # Ground: surfaces under the wheels (the vehicle's own unless patched) and gravity on the slope.
+        base = Surface(name="vehicle", friction=self.mu, rolling_resistance=self.rr)
+        self.ground = GroundContact(
+            scenario.ground, base, effects.friction_change, xw, yw, p.gravity, effects.terrain_grade
+        )
+        self.gravity_x = -self.grade_accel
+        # The tire law: the plant's magic formula (stiffnesses C_x, C_α at m g / 6) or the brush (B.4).
+        self.tire = (
+            MagicFormulaWheels(vehicle.magic_formula, vehicle.nominal_wheel_load, self.cx, self.ca, 6)
+            if self.magic_formula
+            else None
+        )
+
+        # Bound on the fastest tire mode without relaxation, times the slip denominator (1/s · m/s): the
+        # brush's V_r, or the magic formula's V (its stiffnesses bounded for loads up to twice F_z0).
         half_track2 = (0.5 * p.track) ** 2
         x2 = float(np.sum(xw**2))
+        cx, ca = self.cx, self.ca
+        if self.tire is not None:
+            cx, ca = vehicle.magic_formula.max_stiffnesses(
+                vehicle.nominal_wheel_load, self.cx, self.ca, 2.0 * vehicle.nominal_wheel_load
+            )
+        cx, ca = cx * self.ground.max_stiffness_scale, ca * self.ground.max_stiffness_scale
         self.stiffness_times_speed = (
-            3.0 * p.wheel_radius**2 * self.cx / self.side_inertia
-            + 6.0 * (self.cx + self.ca) / p.mass
-            + (6.0 * self.cx * half_track2 + self.ca * x2) / p.yaw_inertia
+            3.0 * p.wheel_radius**2 * cx / self.side_inertia
+            + 6.0 * (cx + ca) / p.mass
+            + (6.0 * cx * half_track2 + ca * x2) / p.yaw_inertia
         )
 
     def derivative(
         self, state: Array, wheel_torque: tuple[float, float], hold: tuple[float, float]
-    ) -> tuple[Array, float, float, tuple[Array, ...]]:
+    ) -> tuple[Array, float, float, tuple[Any, ...]]:
         """Derivative of the state (the RK4 stage function).
 
         Args:
@@ -1121,23 +1216,36 @@ class _EquationsOfMotion:
         Returns:
             ``(derivative, f_x, f_y, forces)`` with f the specific force of the
             road frame (m/s²) and ``forces`` = (F_z, F_x, F_y, F_x,ss, F_y,ss,
-            F_rr, v_x contact, v_y contact), each (6,).
+            F_rr, v_x contact, v_y contact), each (6,), then μ (scalar or (6,))
+            and g_n (m/s²).
         """
-        _, _, yaw, vx, vy, r, omega_l, omega_r, _, _, roll, roll_rate, pitch, pitch_rate = state[:14].tolist()
+        x, y, yaw, vx, vy, r, omega_l, omega_r, _, _, roll, roll_rate, pitch, pitch_rate = state[:14].tolist()
+        cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
+        ground = self.ground
+        mu: Any = self.mu
+        scale: Any = 1.0
+        rr: Any = self.rr
+        if not ground.uniform:
+            mu, scale, rr = ground.surfaces(x, y, cos_yaw, sin_yaw)
+        if ground.level:
+            gravity_x, gravity_y, normal_gravity = self.gravity_x, 0.0, self.normal_gravity
+            static_load = self.static_load
+        else:
+            gravity_x, gravity_y, normal_gravity = ground.gravity(cos_yaw, sin_yaw)
+            static_load = self.static_load_per_gravity * normal_gravity
         contact = self.contact_map @ np.array((vx, vy, r))
         cvx, cvy = contact[:6], contact[6:]
         omega = np.array((omega_l, omega_l, omega_l, omega_r, omega_r, omega_r))
-        sigma_x, sigma_y = theoretical_slips(omega, cvx, cvy, self.params)
         if self.load_dynamics:
             # Suspension springs and dampers; the links and unsprung masses add the f-dependent part below.
             load = (
-                self.static_load
+                static_load
                 - self.roll_unit * (self.roll_stiffness * roll + self.roll_damping * roll_rate)
                 + self.pitch_unit * (self.pitch_stiffness * pitch + self.pitch_damping * pitch_rate)
             )
         else:
-            load = self.static_load
-        resistance_per_load = self.rr * np.tanh(cvx * self.inverse_rr_speed)
+            load = static_load
+        resistance_per_load = rr * np.tanh(cvx * self.inverse_rr_speed)
         derivative = np.zeros(_N_STATES)
         if self.relaxation:
             # The tire forces are states: solve the loop loads → motion resistance → f_x exactly (linear).
@@ -1147,31 +1255,30 @@ class _EquationsOfMotion:
                 self.mass + float(resistance_per_load @ self.load_per_fx)
             )
             load = np.maximum(load + self.load_per_fx * load_f_x, 0.0)
-            steady_fx, steady_fy = brush_tire_forces(
-                sigma_x, sigma_y, load, longitudinal_stiffness=self.cx, cornering_stiffness=self.ca, friction=self.mu
-            )
+            steady_fx, steady_fy = self._tire_forces(omega, cvx, cvy, load, mu, scale)
             speed = np.maximum(np.maximum(self.radius * np.abs(omega), np.hypot(cvx, cvy)), self.relax_floor)
             derivative[_FX] = speed * (steady_fx - fx) * self.inverse_lx
             derivative[_FY] = speed * (steady_fy - fy) * self.inverse_ly
         else:
             hold_fx, hold_fy = hold
             load = np.maximum(load + self.load_per_fx * hold_fx + self.load_per_fy * hold_fy, 0.0)
-            steady_fx, steady_fy = brush_tire_forces(
-                sigma_x, sigma_y, load, longitudinal_stiffness=self.cx, cornering_stiffness=self.ca, friction=self.mu
-            )
+            steady_fx, steady_fy = self._tire_forces(omega, cvx, cvy, load, mu, scale)
             fx, fy = steady_fx, steady_fy
         resistance = resistance_per_load * load
         sum_fx, sum_fy, yaw_moment = (self.force_map @ np.concatenate((fx - resistance, fy))).tolist()
         f_x = sum_fx / self.mass
         f_y = sum_fy / self.mass
-        cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
         thrust_l, thrust_r = (self.side_map @ fx).tolist()
+        if ground.level:
+            accel_x, accel_y = f_x - self.grade_accel + vy * r, f_y - vx * r
+        else:
+            accel_x, accel_y = f_x + gravity_x + vy * r, f_y + gravity_y - vx * r
         derivative[:10] = (
             vx * cos_yaw - vy * sin_yaw,
             vx * sin_yaw + vy * cos_yaw,
             r,
-            f_x - self.grade_accel + vy * r,
-            f_y - vx * r,
+            accel_x,
+            accel_y,
             yaw_moment / self.yaw_inertia,
             (wheel_torque[0] - self.radius * thrust_l) / self.side_inertia,
             (wheel_torque[1] - self.radius * thrust_r) / self.side_inertia,
@@ -1179,7 +1286,7 @@ class _EquationsOfMotion:
             omega_r,
         )
         if self.load_dynamics:
-            gn = self.normal_gravity
+            gn = normal_gravity
             derivative[_ROLL : _PITCH_RATE + 1] = (
                 roll_rate,
                 (
@@ -1196,12 +1303,28 @@ class _EquationsOfMotion:
                 )
                 / self.pitch_axis_inertia,
             )
-        return derivative, f_x, f_y, (load, fx, fy, steady_fx, steady_fy, resistance, cvx, cvy)
+        return derivative, f_x, f_y, (load, fx, fy, steady_fx, steady_fy, resistance, cvx, cvy, mu, normal_gravity)
+
+    def _tire_forces(
+        self, omega: Array, cvx: Array, cvy: Array, load: Array, mu: Any, scale: Any
+    ) -> tuple[Array, Array]:
+        """Steady forces (F_x, F_y) of the vehicle's tire law per wheel (N); μ, scale scalars or per wheel."""
+        if self.tire is not None:
+            return self.tire.forces(self.radius * omega, cvx, cvy, load, mu, scale)
+        sigma_x, sigma_y = theoretical_slips(omega, cvx, cvy, self.params)
+        return brush_forces(
+            sigma_x,
+            sigma_y,
+            load,
+            longitudinal_stiffness=self.cx * scale,
+            cornering_stiffness=self.ca * scale,
+            friction=mu,
+        )
 
     def evaluate(self, state: Array, wheel_torque: tuple[float, float], hold: tuple[float, float]) -> _Evaluation:
         """:meth:`derivative` with its intermediate forces named (for the sensors and the truth)."""
         derivative, f_x, f_y, forces = self.derivative(state, wheel_torque, hold)
-        load, fx, fy, steady_fx, steady_fy, resistance, cvx, cvy = forces
+        load, fx, fy, steady_fx, steady_fy, resistance, cvx, cvy, mu, normal_gravity = forces
         return _Evaluation(
             derivative=derivative,
             normal_load=load,
@@ -1210,10 +1333,12 @@ class _EquationsOfMotion:
             steady_tire_force_x=steady_fx,
             steady_tire_force_y=steady_fy,
             motion_resistance=resistance,
+            friction=np.broadcast_to(np.asarray(mu, dtype=float), (6,)).copy(),
             contact_vx=cvx.copy(),
             contact_vy=cvy.copy(),
             specific_force_x=f_x,
             specific_force_y=f_y,
+            normal_gravity=float(normal_gravity),
         )
 
     def stiff_substeps(self, state: Array, period: float) -> int:
@@ -1221,12 +1346,21 @@ class _EquationsOfMotion:
 
         λ_max ≈ (3R²C_x/I_side + 6(C_x + C_α)/m + (6C_x B²/4 + C_α Σx_i²)/I_z) / V_r
         bounds the slip-stiffness eigenvalues (Gershgorin); V_r is the smallest
-        side rolling speed, halved for the speed change within the period.
+        side rolling speed, halved for the speed change within the period. For
+        the magic formula V_r is its slip denominator max(|v_x|, V_low) at the
+        slowest contact and C_x, C_α its largest stiffnesses (loads up to 2 F_z0,
+        the stiffest surface).
         """
         if self.relaxation:
             return 1
-        omega_min = min(abs(float(state[_OMEGA_L])), abs(float(state[_OMEGA_R])))
-        rolling = max(0.5 * self.radius * omega_min, self.params.rolling_speed_floor)
+        if self.tire is not None:
+            # The magic formula's slip denominator: the contact speed, floored at V_low.
+            contact_vx = self.contact_map[:6] @ state[_VX : _R + 1]
+            floor = self.tire.tire.low_speed
+            rolling = max(0.5 * float(np.min(np.abs(contact_vx))), floor)
+        else:
+            omega_min = min(abs(float(state[_OMEGA_L])), abs(float(state[_OMEGA_R])))
+            rolling = max(0.5 * self.radius * omega_min, self.params.rolling_speed_floor)
         rate = self.stiffness_times_speed / rolling
         return min(_MAX_SUBSTEPS, math.ceil(rate * period / _STIFF_STEP_LIMIT))
 
@@ -1291,6 +1425,11 @@ class SkidSteerSimulator:
         v0 = scenario.manoeuvre.initial_speed
         state[_VX] = v0
         state[_OMEGA_L] = state[_OMEGA_R] = v0 / self._equations.radius
+        if scenario.effects.tire_relaxation and not scenario.ground.level:
+            # On a slope the lagged lateral forces start holding the vehicle (shares ∝ the static loads), not at 0.
+            _, gravity_y, _ = self._equations.ground.gravity(1.0, 0.0)
+            static = self._equations.static_load_per_gravity
+            state[_FY] = -self._equations.mass * gravity_y * static / float(np.sum(static))
         self._state = state
         self._hold = (0.0, 0.0)
         self._speed_integral = 0.0
@@ -1385,12 +1524,12 @@ class SkidSteerSimulator:
         """Noise-free IMU (f_x, f_y, f_z, ω_x, ω_y, ω_z) in the tilted IMU frame, plus roll/pitch accelerations.
 
         The IMU sits on the sprung mass at the CM (height H_s). Road-frame
-        specific force ``(f_x, f_y, g cos γ)`` plus the lever-arm acceleration
+        specific force ``(f_x, f_y, g_n)`` (g_n: gravity normal to the ground,
+        ``g cos γ`` on a grade) plus the lever-arm acceleration
         of the CM rotating about the roll/pitch axes, rotated into the body
         frame tilted by pitch θ then roll φ (ZYX Euler). Angular rate: ZYX
         Euler rates with ψ̇ = r.
         """
-        equations = self._equations
         roll, roll_rate, pitch, pitch_rate = state[_ROLL : _PITCH_RATE + 1].tolist()
         roll_accel = float(evaluation.derivative[_ROLL_RATE])
         pitch_accel = float(evaluation.derivative[_PITCH_RATE])
@@ -1401,7 +1540,7 @@ class SkidSteerSimulator:
         road_x = evaluation.specific_force_x + d_p * (cp * pitch_accel - sp * pitch_rate**2)
         road_y = evaluation.specific_force_y - d_r * (cr * roll_accel - sr * roll_rate**2)
         road_z = (
-            equations.normal_gravity
+            evaluation.normal_gravity
             - d_r * (sr * roll_accel + cr * roll_rate**2)
             - d_p * (sp * pitch_accel + cp * pitch_rate**2)
         )
@@ -1520,6 +1659,7 @@ class SkidSteerSimulator:
             steady_tire_force_x=evaluation.steady_tire_force_x,
             steady_tire_force_y=evaluation.steady_tire_force_y,
             motion_resistance=evaluation.motion_resistance,
+            friction=evaluation.friction,
             specific_force_x=evaluation.specific_force_x,
             specific_force_y=evaluation.specific_force_y,
             roll=float(state[_ROLL]),

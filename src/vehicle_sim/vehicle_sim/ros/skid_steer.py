@@ -16,8 +16,12 @@ contract's topics (CONTRACT.md, skid-steer section):
 The vehicle's nominal physics comes from the same ``vehicle.*`` parameters as
 the estimator's (one config file serves both); ``plant.*`` holds what only the
 truth plant has, ``effects.*`` the switchable unmodelled effects. The defaults
-switch on the two the estimator test needs ([SS] issue: roll/pitch
-load-transfer dynamics and tire relaxation); everything else is off.
+are the truth of the estimator tests: the plant's own magic-formula tire
+(``plant.tire_law``; ``brush`` is the paper's idealised law) and the two
+effects the [SS] issue asks for (roll/pitch load-transfer dynamics and tire
+relaxation); everything else is off. ``ground.*`` inclines the ground plane and
+lays terrain patches on it (:mod:`vehicle_sim.plants.skid_steer_ground`; level
+and uniform by default).
 """
 
 from __future__ import annotations
@@ -44,12 +48,16 @@ from vehicle_sim.plants.skid_steer import (
     SkidSteerSimulator,
     SkidSteerVehicle,
 )
+from vehicle_sim.plants.skid_steer_ground import SURFACES, SkidSteerGround, Surface, TerrainPatch
+from vehicle_sim.plants.tire_laws import TIRE_LAWS, MagicFormulaTire
 
 __all__ = ["SCENARIO_SPECS", "PARAMETERS", "SkidSteerSimAdapter", "make_adapter", "make_scenario", "specs_for"]
 
-_V = SkidSteerVehicle()
+_V = SkidSteerVehicle.truth_default()
 _S = SkidSteerSensors()
 _TRUTH = SkidSteerEffects.truth_default()
+_MF = MagicFormulaTire()
+_G = SkidSteerGround()
 
 #: Truth-only plant parameters: (field of SkidSteerVehicle, unit, description, min, max).
 _PLANT_FIELDS: tuple[tuple[str, str, str, float, float], ...] = (
@@ -71,6 +79,53 @@ _PLANT_FIELDS: tuple[tuple[str, str, str, float, float], ...] = (
     ("lateral_relaxation_length", "m", "tire relaxation length L_y of the lateral force lag", 1e-3, 10.0),
 )
 
+#: Magic-formula tire parameters: (field of MagicFormulaTire, unit, description, min, max).
+_MAGIC_FORMULA_FIELDS: tuple[tuple[str, str, str, float, float], ...] = (
+    ("shape_longitudinal", "-", "shape factor C_x of the pure longitudinal curve", 1.0001, 1.9999),
+    ("curvature_longitudinal", "-", "curvature factor E_x of the pure longitudinal curve", -9.9999, 0.9999),
+    ("shape_lateral", "-", "shape factor C_y of the pure lateral curve", 1.0001, 1.9999),
+    ("curvature_lateral", "-", "curvature factor E_y of the pure lateral curve", -9.9999, 0.9999),
+    (
+        "cornering_stiffness_peak_load",
+        "-",
+        "load, in units of m g/6, at which the cornering stiffness c1 sin(2 atan(Fz/(p Fz0))) is largest",
+        0.01,
+        100.0,
+    ),
+    (
+        "longitudinal_stiffness_load_exponent",
+        "-",
+        "p of the longitudinal slip stiffness Kx0 (Fz/Fz0) exp(p dfz)",
+        -5.0,
+        5.0,
+    ),
+    ("friction_load_sensitivity", "-", "p of the friction mu (1 + p dfz), dfz = Fz/Fz0 - 1", -0.9999, 0.9999),
+    ("low_speed", "m/s", "floor of the slip denominator max(|v_x|, V_low)", 1e-3, 10.0),
+    (
+        "slip_range",
+        "-",
+        "largest combined slip read from the curves, in units of the peak slip; the force is held beyond it",
+        1.0001,
+        1e3,
+    ),
+)
+
+#: Patch parameters: (suffix, field of TerrainPatch / Surface, unit, description, min, max).
+_PATCH_FIELDS: tuple[tuple[str, str, str, str, float, float], ...] = (
+    ("friction", "friction", "-", "peak friction coefficient mu of each patch", 1e-3, 10.0),
+    ("stiffness_scale", "stiffness_scale", "-", "factor on the tire slip stiffnesses on each patch", 1e-3, 10.0),
+    ("rolling_resistance", "rolling_resistance", "-", "rolling-resistance coefficient of each patch", 0.0, 1.0),
+    ("x_min", "x_min", "m", "lower x edge of each patch (plane coordinates; -1e9: open)", -1e9, 1e9),
+    ("x_max", "x_max", "m", "upper x edge of each patch (1e9: open)", -1e9, 1e9),
+    ("y_min", "y_min", "m", "lower y edge of each patch (-1e9: open)", -1e9, 1e9),
+    ("y_max", "y_max", "m", "upper y edge of each patch (1e9: open)", -1e9, 1e9),
+)
+
+_PRESETS = "; ".join(
+    f"{name}: mu {s.friction:g}, stiffness x{s.stiffness_scale:g}, f_rr {s.rolling_resistance:g}"
+    for name, s in SURFACES.items()
+)
+
 SCENARIO_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "scenario.manoeuvre",
@@ -85,6 +140,65 @@ SCENARIO_SPECS: tuple[ParamSpec, ...] = (
         for name, unit, text, lo, hi in _PLANT_FIELDS
     ),
     ParamSpec(
+        "plant.tire_law",
+        _V.tire_law,
+        "tire force law of the plant: magic_formula (its own, the truth) or brush (the observer's idealised law)",
+        choices=TIRE_LAWS,
+        read_only=True,
+    ),
+    *(
+        ParamSpec(
+            f"plant.magic_formula.{name}",
+            float(getattr(_MF, name)),
+            f"[{unit}] magic-formula tire: {text}",
+            lo,
+            hi,
+            read_only=True,
+        )
+        for name, unit, text, lo, hi in _MAGIC_FORMULA_FIELDS
+    ),
+    ParamSpec(
+        "ground.grade",
+        _G.grade,
+        "[rad] inclination of the ground plane along its x axis (> 0: rises along +x)",
+        -0.78,
+        0.78,
+        read_only=True,
+    ),
+    ParamSpec(
+        "ground.cross_slope",
+        _G.cross_slope,
+        "[rad] inclination of the ground plane along its y axis (> 0: rises along +y; a bank at the start heading)",
+        -0.78,
+        0.78,
+        read_only=True,
+    ),
+    ParamSpec(
+        "ground.transition",
+        _G.transition,
+        "[m] width over which a wheel's surface blends across a patch edge",
+        1e-3,
+        100.0,
+        read_only=True,
+    ),
+    *(
+        ParamSpec(
+            f"ground.patch_{suffix}",
+            [],
+            (
+                f"[{unit}] {text}; one entry per terrain patch: rectangles of the ground plane laid over the "
+                f"vehicle's own surface, later over earlier, each wheel on the one under its contact point; all "
+                f"ground.patch_* lists equally long (none: no patch). Surface presets: {_PRESETS}"
+            )
+            if suffix == "friction"
+            else f"[{unit}] {text}; one entry per terrain patch (as ground.patch_friction)",
+            lo,
+            hi,
+            read_only=True,
+        )
+        for suffix, _, unit, text, lo, hi in _PATCH_FIELDS
+    ),
+    ParamSpec(
         "effects.load_transfer_dynamics",
         _TRUTH.load_transfer_dynamics,
         "sprung-mass roll/pitch dynamics: loads lag the accelerations, the IMU tilts (off: quasi-static loads)",
@@ -93,7 +207,7 @@ SCENARIO_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "effects.tire_relaxation",
         _TRUTH.tire_relaxation,
-        "first-order tire force lag with the relaxation lengths (off: instantaneous brush forces)",
+        "first-order tire force lag with the relaxation lengths (off: instantaneous tire-law forces)",
         read_only=True,
     ),
     ParamSpec("effects.gyro_bias", 0.0, "[rad/s] constant yaw-gyro bias", -1.0, 1.0, read_only=True),
@@ -181,10 +295,42 @@ SCENARIO_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
+def _ground(values: Mapping[str, ParamValue]) -> SkidSteerGround:
+    """The ground from ``ground.*``: slope, transition and the patch lists (equally long)."""
+    columns = {suffix: [float(v) for v in values[f"ground.patch_{suffix}"]] for suffix, *_ in _PATCH_FIELDS}
+    lengths = {len(c) for c in columns.values()}
+    if len(lengths) > 1:
+        sizes = ", ".join(f"ground.patch_{suffix} {len(c)}" for suffix, c in columns.items())
+        raise ValueError(f"the ground.patch_* lists must be equally long (one entry per patch), got {sizes}")
+    patches = []
+    for i in range(lengths.pop() if lengths else 0):
+        surface = Surface(
+            name=f"patch {i}",
+            friction=columns["friction"][i],
+            stiffness_scale=columns["stiffness_scale"][i],
+            rolling_resistance=columns["rolling_resistance"][i],
+        )
+        edges = {
+            name: columns[name][i] if abs(columns[name][i]) < 1e9 else math.copysign(math.inf, columns[name][i])
+            for name in ("x_min", "x_max", "y_min", "y_max")
+        }
+        patches.append(TerrainPatch(surface=surface, **edges))
+    return SkidSteerGround(
+        grade=float(values["ground.grade"]),
+        cross_slope=float(values["ground.cross_slope"]),
+        patches=tuple(patches),
+        transition=float(values["ground.transition"]),
+    )
+
+
 def make_scenario(values: Mapping[str, ParamValue]) -> SkidSteerScenario:
     """The plant's scenario from validated parameter values."""
     vehicle = SkidSteerVehicle(
         nominal=vehicle_params(values),
+        tire_law=str(values["plant.tire_law"]),
+        magic_formula=MagicFormulaTire(
+            **{name: float(values[f"plant.magic_formula.{name}"]) for name, *_ in _MAGIC_FORMULA_FIELDS}
+        ),
         **{name: float(values[f"plant.{name}"]) for name, *_ in _PLANT_FIELDS},
     )
     bias = [float(b) for b in values["effects.accel_bias"]]
@@ -215,7 +361,10 @@ def make_scenario(values: Mapping[str, ParamValue]) -> SkidSteerScenario:
     base = MANOEUVRES[str(values["scenario.manoeuvre"])](vehicle=vehicle, effects=effects, sensors=sensors)
     duration = float(values["scenario.duration"])
     return dataclasses.replace(
-        base, duration=duration if duration > 0.0 else None, sensor_rate=float(values["sensors.rate"])
+        base,
+        duration=duration if duration > 0.0 else None,
+        sensor_rate=float(values["sensors.rate"]),
+        ground=_ground(values),
     )
 
 

@@ -9,7 +9,8 @@ Writes, for each vehicle (``quarter_car``, ``lrv``, ``skid_steer``, ``rover``):
 * ``--controls`` bags (default ``N``) with no effect at all: the nominal
   plant of the catalogue (every effect off; for the skid steer also
   load-transfer dynamics and tire relaxation, which the simulator node
-  switches on by default);
+  switches on by default, and the plant runs the brush tire on level,
+  uniform ground, where the node's truth has its own magic-formula tire);
 * ``--out-of-catalogue`` bags (default ``N`` × the number of kinds, cycling
   through them) with an effect that is *not* in the catalogue
   (:data:`OUT_OF_CATALOGUE`), applied to the messages after the adapter;
@@ -515,8 +516,15 @@ def _install_effects(adapter: Any, vehicle: str, plan: BagPlan) -> None:
         adapter.simulator = QuarterCarSimulator(adapter.vehicle, adapter.scenario, plan.seed)
     elif vehicle == "skid_steer":
         from vehicle_sim.plants.skid_steer import SkidSteerSimulator
+        from vehicle_sim.plants.skid_steer_ground import SkidSteerGround
 
-        adapter.scenario = replace(adapter.scenario, effects=effects_for(vehicle, named))
+        # The catalogue's nominal model: the brush tire (B.4) on level, uniform ground, whatever the node's truth.
+        adapter.scenario = replace(
+            adapter.scenario,
+            vehicle=replace(adapter.scenario.vehicle, tire_law="brush"),
+            ground=SkidSteerGround(),
+            effects=effects_for(vehicle, named),
+        )
         adapter.simulator = SkidSteerSimulator(adapter.scenario, plan.seed)
     elif vehicle == "rover":
         from vehicle_sim.plants.rover import RoverSimulator
