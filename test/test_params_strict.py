@@ -98,6 +98,19 @@ def test_live_node_accepts_rclpys_own_parameters(tmp_path, rclpy_context):
         node.destroy_node()
 
 
+def test_live_node_reads_a_file_describing_another_vehicle_kind(rclpy_context):
+    """config/husky.yaml: '/**' is the 4-wheel Husky of the importer, its estimator section the node's view.
+
+    The node takes the declared '/**' names and its own section over them, as rcl applies the file; the
+    Husky's other names (vehicle.wheelbase, ...) belong to the other readers and are no error."""
+    node = build_node(EstimatorNode, VEHICLES["skid_steer"], config=str(CONFIG / "husky.yaml"), context=rclpy_context)
+    try:
+        assert list(node.get_parameter("vehicle.axle_x").value) == [0.256, -0.256]
+        assert node.get_parameter("vehicle.mass").value == 50.0  # from '/**'
+    finally:
+        node.destroy_node()
+
+
 def test_param_typo_is_exit_status_2_with_the_suggestion(tmp_path, capsys):
     from terrain_estimation.tools import estimate
     from vehicle_sim.tools import simulate

@@ -302,13 +302,13 @@ def test_per_input_terms_are_the_array_forms():
         u = _inputs(rng, k)
         terms = model._terms(u)
         friction = p.friction if u.friction is None else u.friction
-        omega6 = np.repeat(np.array([u.omega_left, u.omega_right]), 3)
-        rolling = p.wheel_radius * omega6
+        omega_wheel = np.repeat(np.array([u.omega_left, u.omega_right]), 3)
+        rolling = p.wheel_radius * omega_wheel
         loads = quasi_static_loads(u.ax, u.ay, p)
         mu_fz = np.asarray(friction, dtype=float) * np.maximum(loads, 0.0)
         limit = 3.0 * mu_fz
         expected = {
-            "omega6": omega6,
+            "omega_wheel": omega_wheel,
             "normal_load": loads,
             "rolling": rolling,
             "rolling_floored": np.maximum(np.abs(rolling), p.rolling_speed_floor),

@@ -136,12 +136,13 @@ def test_outputs_match_the_message_fields_and_definitions():
     straight = [e for e, _ in out if 1.0 < e.t < 2.0]
     assert not any(e.icr_valid for e in straight)
     assert all(e.icr_x == 0.0 and e.icr_y == 0.0 for e in straight)
-    # The messages: the 3x3 covariance in rows/columns 0, 1, 5 of the twist's 6x6, the rest 0.
-    from terrain_estimation.ros.skid_steer import estimate_to_odom_msg, estimate_to_state_msg
+    # The messages: the 3x3 covariance in rows/columns 0, 1, 5 of the twist's 6x6, the unestimated
+    # vz, roll and pitch rates a large variance, the rest 0.
+    from terrain_estimation.ros.skid_steer import UNESTIMATED_VARIANCE, estimate_to_odom_msg, estimate_to_state_msg
 
     odom = estimate_to_odom_msg(e, "v/odom", "v/base_link")
     twist_cov = np.asarray(odom.twist.covariance).reshape(6, 6)
-    expected = np.zeros((6, 6))
+    expected = np.diag([0.0, 0.0, UNESTIMATED_VARIANCE, UNESTIMATED_VARIANCE, UNESTIMATED_VARIANCE, 0.0])
     expected[np.ix_([0, 1, 5], [0, 1, 5])] = cov
     np.testing.assert_array_equal(twist_cov, expected)
     assert (odom.twist.twist.linear.x, odom.twist.twist.linear.y, odom.twist.twist.angular.z) == (
@@ -149,7 +150,11 @@ def test_outputs_match_the_message_fields_and_definitions():
         e.vy,
         e.yaw_rate,
     )
-    assert odom.pose.covariance[0] == -1.0 and not np.asarray(odom.pose.covariance)[1:].any()
+    pose_cov = np.asarray(odom.pose.covariance).reshape(6, 6)
+    expected = np.diag([0.0, 0.0, UNESTIMATED_VARIANCE, UNESTIMATED_VARIANCE, UNESTIMATED_VARIANCE, 0.0])
+    expected[np.ix_([0, 1, 5], [0, 1, 5])] = np.array(e.pose_covariance).reshape(3, 3)
+    np.testing.assert_array_equal(pose_cov, expected)
+    assert pose_cov[0, 0] > 0.0 and pose_cov[5, 5] > 0.0 and (pose_cov >= 0.0).all() is not None
     state = estimate_to_state_msg(e, "v/base_link")
     assert tuple(state.tire_sideslip) == e.tire_sideslip and state.header.frame_id == "v/base_link"
 
@@ -206,7 +211,17 @@ def test_stale_and_missing_wheel_speeds_are_counted():
 
 
 def test_wheel_speeds_held_and_matched_to_the_imu_stamp():
+    # Default: linear interpolation between the samples bracketing the IMU stamp, the newest held beyond it.
     est = SkidSteerEstimator()
+    est.add_joint_state(0.00, 10.0 * RATIO, 10.0 * RATIO)
+    est.add_joint_state(0.02, 20.0 * RATIO, 20.0 * RATIO)
+    e = est.add_imu(0.015, 0.0, 0.0, 0.0)
+    assert e is not None and e.wheel_speed_left == pytest.approx(17.5) and e.vx_encoder == pytest.approx(17.5 * RAD)
+    e = est.add_imu(0.025, 0.0, 0.0, 0.0)
+    assert e is not None and e.wheel_speed_left == pytest.approx(20.0)
+    assert (est.counters.wheel_speeds_interpolated, est.counters.wheel_speeds_held) == (1, 1)
+    # "hold": the zero-order hold of the newest sample not after the IMU stamp.
+    est = SkidSteerEstimator(SkidSteerEstimatorConfig(wheel_speed_interpolation="hold"))
     est.add_joint_state(0.00, 10.0 * RATIO, 10.0 * RATIO)
     est.add_joint_state(0.02, 20.0 * RATIO, 20.0 * RATIO)
     e = est.add_imu(0.015, 0.0, 0.0, 0.0)  # uses the 0.00 sample (the newest not after the IMU)

@@ -3,10 +3,13 @@
 The ROS-free core that the skid-steer estimator node and the offline bag
 runner drive (CONTRACT.md "Skid-steer vehicle"). It owns one
 :class:`~terrain_estimation.filters.an_stukf.AdaptiveStrongTrackingUKF`
-(variant ``"ukf"``, ``"stukf"`` or ``"an_stukf"``) over the 3-state
-:class:`~terrain_estimation.models.skid_steer_observer.SkidSteerObserverModel`
-and turns its state ``[vx, vy, r]`` into every field of
-``terrain_msgs/SkidSteerState`` plus a dead-reckoned pose for ``odom``.
+(variant ``"ukf"``, ``"stukf"`` or ``"an_stukf"``) over an observer model
+(``config.model``: the paper's 3-state brush model by default, or one that
+absorbs tire-model error: scale states, IMU-driven kinematics; see
+:mod:`~terrain_estimation.estimators.skid_steer_config`) for a vehicle with
+any number of axles, and turns its motion state ``[vx, vy, r]`` into every
+field of ``terrain_msgs/SkidSteerState`` plus a dead-reckoned pose with its
+covariance for ``odom``.
 
 Data flow (all times are the ``t`` arguments, in seconds; no wall clock):
 
@@ -18,28 +21,41 @@ Data flow (all times are the ``t`` arguments, in seconds; no wall clock):
   ground; yaw rate in rad/s) and runs one filter step from the previous
   step's stamp to ``t`` with ``z = [a_x, a_y, r]``.
 
-**Wheel speeds (zero-order hold).** A step uses the newest buffered wheel
-speeds stamped at or before ``t`` (or, if all are newer, the oldest one):
-they are held over the step. Wheel speeds older (or newer) than
-``max_wheel_speed_age_s`` relative to the IMU sample are stale: the IMU
-sample is not used for a step (``counters.stale_wheel_speeds``, or
-``no_wheel_speeds`` before the first joint state) and the next step spans
-the gap.
+**Wheel speeds at any rate.** A step uses the wheel speeds at its IMU stamp
+(:mod:`~terrain_estimation.estimators.skid_steer_wheels`): linearly
+interpolated between the two samples that bracket it, the newest held
+beyond it, within an age limit that follows the measured wheel-speed period
+(2.5 periods, at least 0.05 s; or ``max_wheel_speed_age_s``). Further away
+they are stale: the IMU sample is not used for a step
+(``counters.stale_wheel_speeds``, or ``no_wheel_speeds`` before the first
+joint state) and the next step spans the gap. ``counters``
+``wheel_speeds_interpolated`` and ``wheel_speeds_held`` say which lookup each
+step had, :attr:`SkidSteerEstimator.wheel_speed_period_s` the measured
+period. With ``wheel_speed_wait_s`` > 0 an IMU sample newer than the newest
+wheel speeds waits (up to that long) for the next one, to be interpolated.
 
 **Load model input.** The quasi-static wheel loads (B.5) take the measured
 ``a_x, a_y`` through a first-order low-pass (``accel_cutoff_hz``, default
 2 Hz: passes the manoeuvre, removes vibration, and roughly mimics the lag of
 the real body's pitch/roll load transfer). A step uses the low-pass output
 *before* the step's own sample, so the input does not contain the
-measurement noise of the update it feeds.
+measurement noise of the update it feeds. The kinematic models' process
+takes the raw IMU sample before the step's own.
+
+**Standing still.** Wheels stopped and the IMU quiet over a short window
+(:mod:`~terrain_estimation.estimators.skid_steer_zupt`) add a zero-velocity
+update after the step (``counters.zero_velocity_updates``; the estimate's
+``stationary``).
 
 **Initialisation and restarts.** The first IMU sample with usable wheel
 speeds initialises the filter at ``initial_state`` or, by default, at the
 encoder-only speed ``R(ω_l + ω_r)/2``, ``vy = 0`` and the measured yaw rate,
-with covariance ``diag(p0_diag)``; it produces an estimate (no update). A
-gap longer than ``max_step_s`` since the last step restarts the same way
-(``counters.restarts``): explicit Euler over a long gap at low rolling speed
-would need hundreds of sub-steps, and the state has moved on anyway.
+with covariance ``diag(p0_diag)`` (scale states at 1 with
+``tire_scales.initial_std``; a restart keeps their last estimate); it
+produces an estimate (no update). A gap longer than ``max_step_s`` since the
+last step restarts the same way (``counters.restarts``): explicit Euler over
+a long gap at low rolling speed would need hundreds of sub-steps, and the
+state has moved on anyway.
 
 **Never NaN.** Non-finite arguments raise ValueError naming the field and
 its value (the caller's bug or a broken driver; nothing is stored). If a
@@ -58,17 +74,14 @@ for a filter that stays finite but diverges: a variance above
 windowed mean NIS above its χ² band, a gate lock-out. On any fault,
 including a failed step or a non-finite state, the filter re-initialises
 from the *last good* estimate (the newest one whose NIS window was inside
-its band; the previous posterior may already be off) with the initial
-covariance and a fresh strong-tracking memory (``counters.divergences``
-instead of ``recoveries``; :attr:`SkidSteerEstimator.fault` holds the reason
-until a new window is consistent). The low side of the band
-(``DivergenceConfig.check_low``) is refused for the AN-STUKF, whose
-adaptive noise rescales R with the tire sideslip, and fires on healthy data
-for every variant with the default ``r0_diag`` (4 × the accelerometer noise
-variance): the mean NIS is 0.13–0.26 against 3 on the shipped bags
-(docs/results/skid_steer.md: UKF 0.196, AN-STUKF 0.157), and the node keeps
-it off. With it off the monitor never fired on those bags (three
-variants; ``window`` 20, ``probability`` 0.999, ``persistence`` 10).
+its band) with the initial covariance and a fresh strong-tracking memory
+(``counters.divergences`` instead of ``recoveries``;
+:attr:`SkidSteerEstimator.fault` holds the reason until a new window is
+consistent). The low side of the band (``DivergenceConfig.check_low``) is
+refused for the AN-STUKF, whose adaptive noise rescales R with the tire
+sideslip, and fires on healthy data for every variant with the default
+``r0_diag``: the mean NIS is 0.13–0.26 against 3 on the shipped bags, and
+the node keeps it off.
 
 **Physical limits (issue 19).** No estimate leaves the vehicle's envelope
 ``max_speed`` (planar speed ``√(vx² + vy²)``, m/s) and ``max_yaw_rate``
@@ -79,22 +92,13 @@ encoder speed, ``vy = 0``, ``r`` = the measured yaw rate, each clipped to the
 envelope; covariance ``diag(p0_diag)``), that restart is the estimate of the
 step (``initialised``), and :attr:`SkidSteerEstimator.fault` names the limit
 for ``fault_hold_s`` of stamps after the last one. The runaway this stops
-(BorealTC Husky, deep snow and bumps; found by comparing the variants): when the
-brush forces of the state saturate (slip velocities beyond ``≈ 3 μ F_z V_r / C``,
-0.1 m/s at 0.5 m/s wheel speed on the Husky), ``h`` no longer depends on the
-speed's magnitude; accelerations the tires cannot produce (bumps of 2–6 g,
-sides spinning against a body that does not turn) then keep the innovation
-large, the strong-tracking fading factor sits at ``λ_max`` step after step and
-multiplies the covariance by it each time (10ᵏ), and the update moves the
-mean by about its standard deviation: ``|v|`` grows by ≈ √10 per step to
-1e155 m/s (the plain UKF, whose covariance grows only by Q, stays bounded).
-The mean moves by about √P per step, so the check on the mean also bounds the
-covariance (each reset restores ``p0_diag``). The cause is in the tuning for
-such data: ``config/husky.yaml`` sets the measured IMU noise and
-``lambda_max`` 2 and runs the 21 BorealTC runs without a reset. The
-NIS-band monitor (``divergence``) is no guard there: the bumps' heavy tails put
-the windowed mean NIS above its band on every run (23–376 "divergences" per
-run), which is why it stays off by default.
+(BorealTC Husky, deep snow and bumps): when the brush forces of the state
+saturate, ``h`` no longer depends on the speed's magnitude; accelerations the
+tires cannot produce (bumps of 2–6 g, sides spinning against a body that does
+not turn) keep the innovation large, the strong-tracking fading factor sits
+at ``λ_max`` step after step and multiplies the covariance by it each time,
+and ``|v|`` grew to 1e155 m/s. ``config/husky.yaml`` sets the measured IMU
+noise and ``lambda_max`` 2 for such data.
 
 **Outputs.** :meth:`~SkidSteerEstimator.add_imu` returns the estimate its
 step produced (None if none); every estimate also goes to an outbox read
@@ -102,7 +106,11 @@ by :meth:`~SkidSteerEstimator.drain_estimates`. The body sideslip variance
 is the first-order propagation of the ``(vx, vy)`` covariance through
 ``β = atan2(vy, vx)``. The pose (``x, y, yaw`` in the odom frame, origin at
 the first sample) integrates the estimated twist with the trapezoidal rule
-and the mid-step heading.
+and the mid-step heading, its covariance through the same map's Jacobians
+(:mod:`~terrain_estimation.estimators.skid_steer_odometry`). The tire
+sideslip of all 2N wheels is ``wheel_tire_sideslip``; ``tire_sideslip`` is
+the contract's six (front, middle, rear per side; for N ≠ 3 the middle is
+interpolated, :func:`~terrain_estimation.models.skid_steer.contract_tire_sideslip`).
 """
 
 from __future__ import annotations
@@ -110,188 +118,38 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 
-from terrain_estimation.filters.adaptive import StrongTrackingConfig
-from terrain_estimation.filters.an_stukf import VARIANTS, AdaptiveStrongTrackingUKF, Variant
+from terrain_estimation.estimators.skid_steer_config import MODELS, SkidSteerEstimatorConfig
+from terrain_estimation.estimators.skid_steer_odometry import DeadReckoning
+from terrain_estimation.estimators.skid_steer_wheels import WheelSpeedBuffer
+from terrain_estimation.estimators.skid_steer_zupt import StationaryDetector, zero_velocity_update
+from terrain_estimation.filters.an_stukf import AdaptiveStrongTrackingUKF
 from terrain_estimation.filters.base import Array, GaussianState, UpdateInfo
-from terrain_estimation.filters.faults import DivergenceConfig, DivergenceMonitor
-from terrain_estimation.filters.ukf import UnscentedKalmanFilter
-from terrain_estimation.models.skid_steer import SkidSteerParams
+from terrain_estimation.filters.faults import DivergenceMonitor
+from terrain_estimation.models.skid_steer import CONTRACT_AXLES, axle_count, axle_positions
+from terrain_estimation.models.skid_steer_kinematic import KinematicInput
 from terrain_estimation.models.skid_steer_observer import (
-    DEFAULT_Q0_DIAG,
-    DEFAULT_R0_DIAG,
     SkidSteerInput,
-    SkidSteerObserverModel,
     _derived_values,
     _wheel_xy,
     encoder_kinematics,
 )
 
 __all__ = [
+    "MODELS",
     "SkidSteerEstimatorConfig",
     "SkidSteerEstimate",
     "SkidSteerCounters",
     "SkidSteerEstimator",
 ]
 
-#: Joint-state samples kept for the zero-order hold lookup.
+#: Joint-state samples kept for the wheel-speed lookup.
 _JOINT_BUFFER = 64
-
-
-@dataclass(frozen=True)
-class SkidSteerEstimatorConfig:
-    """Configuration of :class:`SkidSteerEstimator` (one frozen object).
-
-    Attributes:
-        vehicle: vehicle parameters (Table 1 plus μ, ε; MODELS.md B.2).
-        filter: ``"ukf"`` (B.8), ``"stukf"`` (+ strong tracking, B.9) or
-            ``"an_stukf"`` (+ adaptive noise, B.10; the paper's filter).
-        ukf_alpha: sigma-point spread α. Default 1: the paper asks for "α
-            small", but with n = 3 and κ = 0 a small α makes ``W_m0 = 1 −
-            3/(α²·3)`` large and negative (−9999 at α = 0.01), which loses
-            positive-definiteness of the predicted covariance; α = 1 gives
-            ``W_m0 = 0``, ``W_c0 = 2`` and well-conditioned weights (B.8).
-        ukf_beta: β (2: optimal for a Gaussian prior).
-        ukf_kappa: κ (0 = 3 − n for n = 3).
-        gate_threshold: NIS gate (χ²₃ quantile, e.g. 16.3 for 0.999); None
-            disables. A gated update keeps the prediction.
-        strong_tracking: ρ, β_w, γ_th, λ_max of the fading factor (B.9;
-            defaults ρ = 0.95, β_w = 1, γ_th = 3, λ_max = 10).
-        k_q: ``K_q`` (rad⁻¹) of ``Q_k = Q0(1 + K_q ᾱ)`` (B.10, default 5).
-        k_r: ``K_r`` (rad⁻¹) of ``R_k = R0/(1 + K_r ᾱ)`` (B.10, default 2).
-        q0_diag: base process noise per ``q_step_dt`` ((m/s)², (m/s)²,
-            (rad/s)²); reasons in :mod:`~terrain_estimation.models.skid_steer_observer`.
-        q_step_dt: step length ``q0_diag`` refers to (s).
-        r0_diag: base measurement noise of ``[a_x, a_y, r]`` ((m/s²)²,
-            (m/s²)², (rad/s)²). Set the acceleration entries to the real
-            accelerometer noise + vibration (see the observer module).
-        substeps: minimum Euler sub-steps per filter step.
-        max_euler_gain: Euler gain bound per sub-step that sets the number of
-            sub-steps (None: exactly ``substeps``, the literal B.6 scheme).
-        max_substeps: a step needing more sub-steps fails (→ recovery).
-        accel_cutoff_hz: cut-off of the first-order low-pass of the measured
-            ``a_x, a_y`` that feed the load model (Hz).
-        min_yaw_rate: ICR published only for ``|r|`` above it (rad/s, B.3).
-        min_sideslip_speed: below this speed (m/s) the body and tire sideslip
-            angles are undefined and reported as 0 with variance π².
-        max_wheel_speed_age_s: wheel speeds further than this from the IMU
-            stamp are stale (s).
-        max_step_s: a longer gap between steps restarts the filter (s).
-        friction: μ; None uses ``vehicle.friction``.
-        initial_state: ``(vx, vy, r)`` at (re)initialisation; None = encoder
-            speed, 0, measured yaw rate.
-        p0_diag: initial covariance diagonal ((m/s)², (m/s)², (rad/s)²).
-            Default std 0.3 m/s, 0.2 m/s, 0.02 rad/s: the encoder speed is
-            off by the slip (≲ 20 % at manoeuvring speeds), vy is a small
-            fraction of vx, the gyro gives r.
-        divergence: divergence detection and recovery
-            (:class:`~terrain_estimation.filters.faults.DivergenceConfig`,
-            module docstring); None (default) keeps only the recovery from a
-            failed or non-finite step. ``check_low`` must be False for
-            ``"an_stukf"``.
-        max_speed: the vehicle's planar speed limit (m/s): an estimate beyond
-            it is a divergence (module docstring). Default 20 m/s: [SS]'s 3 t vehicle runs its
-            manoeuvres at up to 30 km/h (8.3 m/s).
-        max_yaw_rate: the vehicle's yaw-rate limit (rad/s), the same for ``r``.
-            Default 3 rad/s.
-        fault_hold_s: :attr:`SkidSteerEstimator.fault` names a limit reset for
-            this long after it (s of stamps; the diagnostics period is 1 s).
-    """
-
-    vehicle: SkidSteerParams = field(default_factory=SkidSteerParams)
-    filter: Variant = "an_stukf"
-    ukf_alpha: float = 1.0
-    ukf_beta: float = 2.0
-    ukf_kappa: float = 0.0
-    gate_threshold: float | None = None
-    strong_tracking: StrongTrackingConfig = field(default_factory=StrongTrackingConfig)
-    k_q: float = 5.0
-    k_r: float = 2.0
-    q0_diag: tuple[float, float, float] = DEFAULT_Q0_DIAG
-    q_step_dt: float = 0.01
-    r0_diag: tuple[float, float, float] = DEFAULT_R0_DIAG
-    substeps: int = 1
-    max_euler_gain: float | None = 0.5
-    max_substeps: int = 1000
-    accel_cutoff_hz: float = 2.0
-    min_yaw_rate: float = 0.02
-    min_sideslip_speed: float = 0.2
-    max_wheel_speed_age_s: float = 0.05
-    max_step_s: float = 0.1
-    friction: float | None = None
-    initial_state: tuple[float, float, float] | None = None
-    p0_diag: tuple[float, float, float] = (0.3**2, 0.2**2, 0.02**2)
-    divergence: DivergenceConfig | None = None
-    max_speed: float = 20.0
-    max_yaw_rate: float = 3.0
-    fault_hold_s: float = 1.0
-
-    def __post_init__(self) -> None:
-        if self.filter not in VARIANTS:
-            raise ValueError(f"filter must be one of {VARIANTS}, got {self.filter!r}")
-        positive = (
-            "accel_cutoff_hz",
-            "max_wheel_speed_age_s",
-            "max_step_s",
-            "q_step_dt",
-            "max_speed",
-            "max_yaw_rate",
-            "fault_hold_s",
-        )
-        for name in positive:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be finite and > 0, got {value}")
-        for name in ("min_yaw_rate", "min_sideslip_speed", "k_q", "k_r"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value}")
-        if self.friction is not None and not (math.isfinite(self.friction) and self.friction > 0.0):
-            raise ValueError(f"friction must be None or finite and > 0, got {self.friction}")
-        if self.initial_state is not None:
-            if len(self.initial_state) != 3 or not all(math.isfinite(v) for v in self.initial_state):
-                raise ValueError(f"initial_state must be None or 3 finite values, got {self.initial_state}")
-        if len(self.p0_diag) != 3 or not all(math.isfinite(v) and v > 0.0 for v in self.p0_diag):
-            raise ValueError(f"p0_diag must hold 3 finite variances > 0, got {self.p0_diag}")
-        if self.gate_threshold is not None and not (math.isfinite(self.gate_threshold) and self.gate_threshold > 0.0):
-            raise ValueError(f"gate_threshold must be None or finite and > 0, got {self.gate_threshold}")
-        if self.divergence is not None:
-            if not isinstance(self.divergence, DivergenceConfig):
-                raise ValueError(f"divergence must be None or a DivergenceConfig, got {type(self.divergence).__name__}")
-            if self.filter == "an_stukf" and self.divergence.check_low:
-                raise ValueError(
-                    "divergence.check_low must be False for filter 'an_stukf': its adaptive noise rescales R, "
-                    "and its NIS runs far below the chi-square band on healthy data (mean about 0.2 against 3)"
-                )
-        # The filter and model validate their own parameters.
-        self.make_model()
-        self.make_filter()
-
-    def make_model(self) -> SkidSteerObserverModel:
-        """The observer model these settings describe."""
-        return SkidSteerObserverModel(
-            self.vehicle,
-            q0_diag=self.q0_diag,
-            r0_diag=self.r0_diag,
-            q_step_dt=self.q_step_dt,
-            substeps=self.substeps,
-            max_euler_gain=self.max_euler_gain,
-            max_substeps=self.max_substeps,
-        )
-
-    def make_filter(self) -> AdaptiveStrongTrackingUKF:
-        """The filter these settings describe."""
-        ukf = UnscentedKalmanFilter(
-            alpha=self.ukf_alpha, beta=self.ukf_beta, kappa=self.ukf_kappa, gate_threshold=self.gate_threshold
-        )
-        return AdaptiveStrongTrackingUKF(
-            variant=self.filter, ukf=ukf, strong_tracking=self.strong_tracking, k_q=self.k_q, k_r=self.k_r
-        )
 
 
 @dataclass(frozen=True)
@@ -308,7 +166,8 @@ class SkidSteerEstimate:
         body_sideslip: β = atan2(vy, vx) (rad).
         body_sideslip_variance: first-order variance of β (rad², ≤ π²).
         slip_left, slip_right: per-side longitudinal slip κ (> 0 in traction).
-        tire_sideslip: α of FL, ML, RL, FR, MR, RR (rad).
+        tire_sideslip: the contract's six α (rad): FL, ML, RL, FR, MR, RR for
+            three axles; per side front, interpolated middle, rear otherwise.
         icr_x, icr_y: instantaneous centre of rotation in body axes (m); 0
             when not valid.
         icr_valid: ``|r| > min_yaw_rate``.
@@ -322,6 +181,13 @@ class SkidSteerEstimate:
         initialised: this estimate comes from a (re)initialisation, not a filter step.
         wheel_speed_left, wheel_speed_right: wheel-side speeds used (rad/s).
         vx_encoder, yaw_rate_encoder: slip-free encoder-only estimates (m/s, rad/s).
+        pose_covariance: covariance of the pose ``[x, y, yaw]``, 9 values
+            row-major (m², m·rad, rad²).
+        wheel_tire_sideslip: α of all 2N wheels in wheel order (rad).
+        tire_scales: the estimated tire-parameter scales (``config.scale_states``
+            order; empty without scale states).
+        stationary: the stationary detector saw the vehicle at rest (a
+            zero-velocity update was applied when enabled).
     """
 
     t: float
@@ -353,6 +219,10 @@ class SkidSteerEstimate:
     wheel_speed_right: float
     vx_encoder: float
     yaw_rate_encoder: float
+    pose_covariance: tuple[float, ...] = (0.0,) * 9
+    wheel_tire_sideslip: tuple[float, ...] = ()
+    tire_scales: tuple[float, ...] = ()
+    stationary: bool = False
 
 
 @dataclass(frozen=True)
@@ -374,6 +244,9 @@ class SkidSteerCounters:
     no_wheel_speeds: int = 0
     imu_out_of_order: int = 0
     joint_out_of_order: int = 0
+    wheel_speeds_interpolated: int = 0
+    wheel_speeds_held: int = 0
+    zero_velocity_updates: int = 0
 
 
 def _finite(where: str, name: str, value: Any) -> float:
@@ -383,45 +256,59 @@ def _finite(where: str, name: str, value: Any) -> float:
     return v
 
 
-def _wrap(angle: float) -> float:
-    """Angle in (−π, π]."""
-    a = math.remainder(angle, 2.0 * math.pi)
-    return math.pi if a == -math.pi else a
-
-
 class SkidSteerEstimator:
-    """Motion states of the six-wheel skid steer from wheel speeds and the IMU (module docstring).
+    """Motion states of a skid-steered vehicle from wheel speeds and the IMU (module docstring).
 
     Args:
-        config: settings; defaults are the AN-STUKF with the B.10 noise.
+        config: settings; defaults are the AN-STUKF with the B.10 noise on the paper's vehicle.
     """
 
     def __init__(self, config: SkidSteerEstimatorConfig | None = None) -> None:
         self.config = config if config is not None else SkidSteerEstimatorConfig()
-        self.model = self.config.make_model()
-        self.filter = self.config.make_filter()
-        self._p0 = np.diag(np.array(self.config.p0_diag, dtype=float))
-        self._friction = self.config.friction
+        cfg = self.config
+        self.model = cfg.make_model()
+        self.filter = cfg.make_filter()
+        self._n_scales = len(cfg.scale_states)
+        p0 = np.zeros((3 + self._n_scales, 3 + self._n_scales))
+        p0[:3, :3] = np.diag(np.array(cfg.p0_diag, dtype=float))
+        if self._n_scales:
+            p0[3:, 3:] = self.model.initial_scale_covariance()
+        self._p0 = p0
+        self._friction = cfg.friction
+        self._kinematic = cfg.model.startswith("kinematic")
         # Per-step constants of _estimate.
-        self._wheel_xy = _wheel_xy(self.config.vehicle)
-        self._speed_floor_sq = self.config.vehicle.rolling_speed_floor**2
-        self._min_sideslip_speed_sq = self.config.min_sideslip_speed**2
+        self._wheel_xy = _wheel_xy(cfg.vehicle)
+        self._speed_floor_sq = cfg.vehicle.rolling_speed_floor**2
+        self._min_sideslip_speed_sq = cfg.min_sideslip_speed**2
+        self._contract_map = _contract_mapping(cfg)
         self.reset()
 
     # -- public API ---------------------------------------------------------------
     def reset(self) -> None:
         """Forget the state, the buffers, the pose, the outbox and the counters."""
+        cfg = self.config
         self._state: GaussianState | None = None
         self._memory: Array | None = None
         self._t_prev: float | None = None
         self._t_last_imu: float | None = None
         self._a_lp: tuple[float, float] | None = None
-        self._joints: deque[tuple[float, float, float]] = deque(maxlen=_JOINT_BUFFER)
-        self._pose = (0.0, 0.0, 0.0)
+        self._a_raw_prev: tuple[float, float] | None = None
+        self._gyro_prev = 0.0
+        self._wheels = WheelSpeedBuffer(
+            cfg.wheel_speed_interpolation,
+            max_age_s=cfg.max_wheel_speed_age_s,
+            age_periods=cfg.wheel_speed_age_periods,
+            min_age_s=cfg.min_wheel_speed_age_s,
+            capacity=_JOINT_BUFFER,
+        )
+        self._pending: deque[tuple[float, Array, tuple[float, float]]] = deque()
+        self._odometry = DeadReckoning(cfg.odom_correlation_time_s)
+        self._detector = StationaryDetector(cfg.zupt, cfg.vehicle.wheel_radius)
+        self._stationary = False
         self._last: SkidSteerEstimate | None = None
         self._outbox: list[SkidSteerEstimate] = []
         self._c: dict[str, int] = dict.fromkeys(SkidSteerCounters.__dataclass_fields__, 0)
-        div = self.config.divergence
+        div = cfg.divergence
         self._monitor = DivergenceMonitor(div) if div is not None else None
         self._limit_fault: str | None = None
         self._limit_fault_until = -math.inf
@@ -435,6 +322,24 @@ class SkidSteerEstimator:
         """The health counters by :class:`SkidSteerCounters` field name, in field order: a read-only
         view of the live counts (until :meth:`reset`), cheaper than the :attr:`counters` snapshot."""
         return MappingProxyType(self._c)
+
+    @property
+    def wheel_speed_period_s(self) -> float | None:
+        """Measured wheel-speed period (s, running median); None before two joint states."""
+        return self._wheels.period_s
+
+    @property
+    def wheel_speed_max_age_s(self) -> float:
+        """The wheel-speed age limit in force (s)."""
+        return self._wheels.max_age_s
+
+    @property
+    def tire_scales(self) -> dict[str, float]:
+        """The current tire-parameter scale estimates by name (empty without scale states or state)."""
+        if not self._n_scales or self._state is None:
+            return {}
+        values = self.model.scale_values(self._state.x)
+        return dict(zip(self.config.scale_states, values, strict=True))
 
     @property
     def fault(self) -> str | None:
@@ -473,6 +378,9 @@ class SkidSteerEstimator:
     def add_joint_state(self, t: float, motor_velocity_left: float, motor_velocity_right: float) -> None:
         """Buffer one sample of the motor speeds (motor side, rad/s, > 0 drives forward).
 
+        With ``wheel_speed_wait_s`` > 0, IMU samples waiting for it are processed now (their
+        estimates go to the outbox).
+
         Raises:
             ValueError: a non-finite argument (named in the message).
         """
@@ -481,18 +389,19 @@ class SkidSteerEstimator:
         wl = _finite(where, "motor_velocity_left", motor_velocity_left)
         wr = _finite(where, "motor_velocity_right", motor_velocity_right)
         self._c["joint_states"] += 1
-        if self._joints and tt <= self._joints[-1][0]:
+        ratio = self.config.vehicle.transmission_ratio
+        if not self._wheels.add(tt, wl / ratio, wr / ratio):
             self._c["joint_out_of_order"] += 1
             return
-        ratio = self.config.vehicle.transmission_ratio
-        self._joints.append((tt, wl / ratio, wr / ratio))
+        if self._pending and self._t_last_imu is not None:
+            self._release(self._t_last_imu)
 
     def add_imu(self, t: float, ax: float, ay: float, yaw_rate: float) -> SkidSteerEstimate | None:
         """One IMU sample (specific force a_x, a_y in m/s²; yaw rate in rad/s): one filter step.
 
         Returns:
-            The estimate of this step, or None when no step ran (out-of-order
-            stamp, stale or missing wheel speeds).
+            The estimate of this step (with ``wheel_speed_wait_s`` > 0: of the newest step this call
+            ran), or None when no step ran (out-of-order stamp, stale or missing wheel speeds, waiting).
 
         Raises:
             ValueError: a non-finite argument (named in the message).
@@ -513,23 +422,47 @@ class SkidSteerEstimator:
             self._c["imu_out_of_order"] += 1
             return None
         a_prev = self._lowpass(tt, z[0], z[1])
+        if self.config.wheel_speed_wait_s > 0.0:
+            self._pending.append((tt, z, a_prev))
+            return self._release(tt)
+        return self._process(tt, z, a_prev)
+
+    # -- internals ------------------------------------------------------------------
+    def _release(self, now: float) -> SkidSteerEstimate | None:
+        """Process the waiting IMU samples whose wheel speeds are bracketed or whose wait ran out."""
+        est = None
+        wait = self.config.wheel_speed_wait_s
+        pending = self._pending
+        while pending:
+            t = pending[0][0]
+            newest = self._wheels.newest_time
+            if (newest is None or newest < t) and now - t < wait:
+                break
+            est = self._process(*pending.popleft())
+        return est
+
+    def _process(self, tt: float, z: Array, a_prev: tuple[float, float]) -> SkidSteerEstimate | None:
+        """One IMU sample, in stamp order: wheel speeds, stationarity, then initialise, restart or step."""
+        a_raw = self._a_raw_prev if self._a_raw_prev is not None else (float(z[0]), float(z[1]))
+        self._a_raw_prev = (float(z[0]), float(z[1]))
         if self._limit_fault is not None and tt >= self._limit_fault_until:
             self._limit_fault = None
         wheels = self._wheel_speeds_at(tt)
         if wheels is None:
             return None
         wl, wr = wheels
+        self._stationary = self._detector.observe(tt, float(z[0]), float(z[1]), float(z[2]), wl, wr)
         if self._state is None or self._t_prev is None:
             est = self._initialise(tt, wl, wr, z, restart=False)
         elif tt - self._t_prev > self.config.max_step_s:
             est = self._initialise(tt, wl, wr, z, restart=True)
         else:
-            est = self._step(tt, wl, wr, z, a_prev)
+            est = self._step(tt, wl, wr, z, a_prev, a_raw)
+        self._gyro_prev = float(z[2])
         self._last = est
         self._outbox.append(est)
         return est
 
-    # -- internals ------------------------------------------------------------------
     def _lowpass(self, t: float, ax: float, ay: float) -> tuple[float, float]:
         """Advance the a_x, a_y low-pass with a sample; return its output *before* the sample."""
         if self._a_lp is None or self._t_last_imu is None:
@@ -543,22 +476,37 @@ class SkidSteerEstimator:
         return prev
 
     def _wheel_speeds_at(self, t: float) -> tuple[float, float] | None:
-        """Zero-order hold: newest wheel speeds stamped ≤ t (else the oldest), None if stale/missing."""
-        if not self._joints:
+        """The wheel speeds at ``t`` (interpolated or held), None if stale or missing (counted)."""
+        if not len(self._wheels):
             self._c["no_wheel_speeds"] += 1
             return None
-        chosen = self._joints[0]
-        for sample in reversed(self._joints):
-            if sample[0] <= t:
-                chosen = sample
-                break
-        if abs(t - chosen[0]) > self.config.max_wheel_speed_age_s:
+        found = self._wheels.at(t)
+        if found is None:
             self._c["stale_wheel_speeds"] += 1
             return None
-        return chosen[1], chosen[2]
+        self._c["wheel_speeds_interpolated" if found[2] == "interpolated" else "wheel_speeds_held"] += 1
+        return found[0], found[1]
 
     def _input(self, wl: float, wr: float, a: tuple[float, float]) -> SkidSteerInput:
         return SkidSteerInput(wl, wr, a[0], a[1], self._friction)
+
+    def _model_input(
+        self, wl: float, wr: float, a: tuple[float, float], a_raw: tuple[float, float], yaw_acceleration: float
+    ) -> Any:
+        u = self._input(wl, wr, a)
+        return KinematicInput(u, a_raw[0], a_raw[1], yaw_acceleration) if self._kinematic else u
+
+    def _full_state(self, motion: Array, scales: Array | None = None) -> Array:
+        """``[vx, vy, r]`` with the scale states appended (given, else the current estimate's, else 0)."""
+        if not self._n_scales:
+            return motion
+        if scales is None:
+            scales = np.zeros(self._n_scales)
+            if self._state is not None:
+                current = np.asarray(self._state.x, dtype=float)[3:]
+                if np.isfinite(current).all():
+                    scales = current
+        return np.concatenate([motion, scales])
 
     def _initialise(self, t: float, wl: float, wr: float, z: Array, *, restart: bool) -> SkidSteerEstimate:
         cfg = self.config
@@ -566,7 +514,7 @@ class SkidSteerEstimator:
             x0 = np.array(cfg.initial_state, dtype=float)
         else:
             x0 = self._odometry_state(wl, wr, float(z[2]))
-        self._state = self.filter.initial_state(x0, self._p0)
+        self._state = self.filter.initial_state(self._full_state(x0), self._p0)
         self._memory = None
         if self._monitor is not None:
             self._monitor.start(self._state)
@@ -575,23 +523,30 @@ class SkidSteerEstimator:
         self._t_prev = t
         return self._estimate(t, wl, wr, dt, fading=1.0, scale=1.0, a_bar=0.0, nis=0.0, accepted=False, init=True)
 
-    def _step(self, t: float, wl: float, wr: float, z: Array, a_prev: tuple[float, float]) -> SkidSteerEstimate:
+    def _step(
+        self, t: float, wl: float, wr: float, z: Array, a_prev: tuple[float, float], a_raw: tuple[float, float]
+    ) -> SkidSteerEstimate:
         assert self._state is not None and self._t_prev is not None
         dt = t - self._t_prev
         self._t_prev = t
         self._c["steps"] += 1
         prev = self._state
-        u = self._input(wl, wr, a_prev)
+        if self._kinematic:
+            u = self._model_input(wl, wr, a_prev, a_raw, (float(z[2]) - self._gyro_prev) / dt)
+            if self.model.measurement_dim == 4:  # the yaw-moment pseudo-measurement: z = [a_x, a_y, r, 0]
+                z = np.append(z, 0.0)
+        else:
+            u = self._model_input(wl, wr, a_prev, a_raw, 0.0)
         failure: str | None = None
         try:
             filt = self.filter
             if type(filt) is AdaptiveStrongTrackingUKF:
-                # step's own checks hold here: prev.x is the filter's (3,) float mean, z the finite
+                # step's own checks hold here: prev.x is the filter's (n,) float mean, z the finite
                 # float array add_imu built (the model's output is still checked).
                 post, res = filt._step(prev, prev.x, z, self.model, u, dt, self._memory)
             else:
                 post, res = filt.step(prev, z, self.model, u, dt, self._memory)
-            # np.isfinite(x).all() and np.isfinite(P).all(), on the floats (3 + 9: cheaper than two ufuncs).
+            # np.isfinite(x).all() and np.isfinite(P).all(), on the floats (cheaper than two ufuncs).
             ok = all(map(math.isfinite, np.asarray(post.x, dtype=float).ravel().tolist())) and all(
                 map(math.isfinite, np.asarray(post.P, dtype=float).ravel().tolist())
             )
@@ -627,6 +582,9 @@ class SkidSteerEstimator:
             return self._estimate(t, wl, wr, dt, fading=1.0, scale=1.0, a_bar=0.0, nis=0.0, accepted=False, init=True)
         self._state = post
         self._memory = res.memory
+        if self._stationary and self.config.zupt.enabled:
+            self._state = zero_velocity_update(post, self._detector.mean_yaw_rate(), self.config.zupt)
+            self._c["zero_velocity_updates"] += 1
         if res.accepted:
             self._c["updates_accepted"] += 1
         else:
@@ -662,7 +620,7 @@ class SkidSteerEstimator:
     def _beyond_limits(self, x: Array) -> str:
         """Why the finite mean ``x`` is outside the vehicle's envelope, or ``""``."""
         cfg = self.config
-        vx, vy, r = np.asarray(x, dtype=float).tolist()
+        vx, vy, r = np.asarray(x, dtype=float)[:3].tolist()
         speed = math.hypot(vx, vy)
         if speed > cfg.max_speed:
             return f"speed {speed:.3g} m/s beyond vehicle.max_speed {cfg.max_speed:g} m/s"
@@ -676,27 +634,14 @@ class SkidSteerEstimator:
         """Restart from the wheel odometry and the gyro after an estimate beyond the envelope."""
         self._c["limit_resets"] += 1
         self._c["divergences"] += 1
-        self._state = self.filter.initial_state(self._odometry_state(wl, wr, yaw_rate), self._p0)
+        x0 = self._full_state(self._odometry_state(wl, wr, yaw_rate))
+        self._state = self.filter.initial_state(x0, self._p0)
         self._memory = None
         if self._monitor is not None:
             self._monitor.start(self._state)
         self._limit_fault = f"estimate beyond the vehicle's limits: {reason}; restarted from wheel odometry and gyro"
         self._limit_fault_until = t + self.config.fault_hold_s
         return self._estimate(t, wl, wr, dt, fading=1.0, scale=1.0, a_bar=0.0, nis=0.0, accepted=False, init=True)
-
-    def _advance_pose(self, dt: float, vx_new: float, vy_new: float, r_new: float) -> None:
-        """Trapezoidal twist, mid-step heading (exact for constant twist to O(dt³))."""
-        px, py, yaw = self._pose
-        if dt > 0.0 and self._last is not None:
-            vx = 0.5 * (self._last.vx + vx_new)
-            vy = 0.5 * (self._last.vy + vy_new)
-            r = 0.5 * (self._last.yaw_rate + r_new)
-            mid = yaw + 0.5 * dt * r
-            c, s = math.cos(mid), math.sin(mid)
-            px += dt * (c * vx - s * vy)
-            py += dt * (s * vx + c * vy)
-            yaw = _wrap(yaw + dt * r)
-        self._pose = (px, py, yaw)
 
     def _estimate(
         self,
@@ -716,19 +661,28 @@ class SkidSteerEstimator:
         cfg = self.config
         x = np.asarray(self._state.x, dtype=float)
         P = np.asarray(self._state.P, dtype=float)
-        vx, vy, r = x.tolist()  # the floats of x[0], x[1], x[2]
-        self._advance_pose(dt, vx, vy, r)
+        if self._n_scales:
+            P3 = np.ascontiguousarray(P[:3, :3])
+            vx, vy, r = x[:3].tolist()
+            scales = self.model.scale_values(x)
+        else:
+            P3 = P
+            vx, vy, r = x.tolist()  # the floats of x[0], x[1], x[2]
+            scales = ()
+        cov = P3.ravel().tolist()
+        if dt > 0.0 and self._last is not None:
+            last = self._last
+            self._odometry.advance(dt, (last.vx, last.vy, last.yaw_rate), (vx, vy, r), last.twist_covariance, cov)
         slip_left, slip_right, alpha, beta, icr_x, icr_y, icr_valid, vx_enc, r_enc = _derived_values(
             vx, vy, r, wl, wr, cfg.vehicle, cfg.min_yaw_rate, *self._wheel_xy
         )
-        v2, beta_var = _body_sideslip_variance(vx, vy, P, self._speed_floor_sq)
+        v2, beta_var = _body_sideslip_variance(vx, vy, P3, self._speed_floor_sq)
         if v2 < self._min_sideslip_speed_sq:
             # Near standstill the direction of travel, hence every sideslip
             # angle, is undefined: atan2 of two noise-sized velocities would
             # publish angles up to ±π. Report 0 with the whole-range variance.
             beta, beta_var, alpha = 0.0, math.pi**2, (0.0,) * len(alpha)
-        px, py, yaw = self._pose
-        cov = P.ravel().tolist()
+        px, py, yaw = self._odometry.pose
         return SkidSteerEstimate(
             t=t,
             vx=vx,
@@ -741,7 +695,7 @@ class SkidSteerEstimator:
             body_sideslip_variance=max(beta_var, 0.0),
             slip_left=slip_left,
             slip_right=slip_right,
-            tire_sideslip=alpha,
+            tire_sideslip=alpha if self._contract_map is None else _map_contract(alpha, self._contract_map),
             icr_x=icr_x,
             icr_y=icr_y,
             icr_valid=icr_valid,
@@ -759,7 +713,32 @@ class SkidSteerEstimator:
             wheel_speed_right=wr,
             vx_encoder=vx_enc,
             yaw_rate_encoder=r_enc,
+            pose_covariance=self._odometry.covariance_values,
+            wheel_tire_sideslip=alpha,
+            tire_scales=scales,
+            stationary=self._stationary,
         )
+
+
+def _contract_mapping(cfg: SkidSteerEstimatorConfig) -> tuple[int, int, int, int, float] | None:
+    """``(N, k, k + 1, N − 1, w)`` of :func:`~terrain_estimation.models.skid_steer.contract_tire_sideslip`
+    for N ≠ 3 axles (None for three: the six wheels as they are)."""
+    n = axle_count(cfg.vehicle)
+    if n == CONTRACT_AXLES:
+        return None
+    xa = axle_positions(cfg.vehicle).tolist()
+    x_mid = 0.5 * (xa[0] + xa[-1])
+    k = max(i for i in range(n - 1) if xa[i] >= x_mid)
+    return n, k, k + 1, n - 1, (xa[k] - x_mid) / (xa[k] - xa[k + 1])
+
+
+def _map_contract(alpha: tuple[float, ...], m: tuple[int, int, int, int, float]) -> tuple[float, ...]:
+    """The contract's six tire sideslip values of the 2N per-wheel ones (front, middle, rear per side)."""
+    n, k, k1, last, w = m
+    out: list[float] = []
+    for side in (0, n):
+        out += [alpha[side], (1.0 - w) * alpha[side + k] + w * alpha[side + k1], alpha[side + last]]
+    return tuple(out)
 
 
 def _body_sideslip_variance(vx: float, vy: float, P: Array, speed_floor_sq: float) -> tuple[float, float]:

@@ -1,4 +1,4 @@
-"""Six-wheel skid-steered vehicle: parameters, kinematics, brush tire, quasi-static loads.
+"""Skid-steered vehicle with N axles per side: parameters, kinematics, brush tire, quasi-static loads.
 
 Shared physics of the skid-steer paper ([SS], MODELS.md B.2–B.5), used both by
 the observer model (``terrain_estimation.models.skid_steer_observer``) and by
@@ -8,15 +8,27 @@ rotational dynamics). Plain numpy, vectorised over any leading dimensions.
 
 Conventions
     Body frame REP 103 (x forward, y left, z up), origin at the centre of mass
-    (= geometric centre, where the IMU sits). Wheel order everywhere is
-    ``FL, ML, RL, FR, MR, RR`` (CONTRACT.md ``tire_sideslip``): index
-    ``side * 3 + axle`` with side 0 = left (``y = +B/2``), 1 = right
-    (``y = −B/2``) and axle 0 = front, 1 = middle, 2 = rear. The three wheels of
-    a side turn at the same speed (one motor per side, B.1).
+    (= geometric centre, where the IMU sits). With N axles per side, wheel
+    order everywhere is the left wheels front to rear, then the right wheels
+    front to rear: index ``side * N + axle`` with side 0 = left
+    (``y = +B/2``), 1 = right (``y = −B/2``) and axle 0 = front … N − 1 =
+    rear. For the paper's three axles that is ``FL, ML, RL, FR, MR, RR``
+    (CONTRACT.md ``tire_sideslip``); :func:`wheel_names` names them for any N.
+    The wheels of a side turn at the same speed (one motor per side, B.1).
 
 Geometry (MODELS.md B.2, chosen reading): axle 1 a ahead of axle 2, axle 3 b
 behind it, CM x ahead of axle 2, so axle positions relative to the CM are
 ``a − x, −x, −(b + x)`` = +1.592, −0.244, −1.280 m; track = the "width" B.
+Any other vehicle gives its axle positions directly (``SkidSteerParams.axle_x``,
+front to rear, m from the CM; e.g. the 4-wheel Husky ``(0.256, −0.256)``);
+every per-wheel function is vectorised over the 2N wheels.
+
+Contract mapping (``SkidSteerState.tire_sideslip`` is ``float64[6]``): for
+three axles the six wheels as they are; for N ≠ 3 per side the front axle,
+a virtual middle wheel and the rear axle, where the middle value is the
+side's tire sideslip linearly interpolated over the axle positions at the
+midpoint between the front and the rear axle (for two axles the mean of
+front and rear): :func:`contract_tire_sideslip`.
 """
 
 from __future__ import annotations
@@ -32,9 +44,13 @@ Array = NDArray[np.float64]
 
 __all__ = [
     "WHEEL_NAMES",
+    "CONTRACT_AXLES",
     "SkidSteerParams",
+    "axle_count",
     "axle_positions",
+    "wheel_names",
     "wheel_positions",
+    "contract_tire_sideslip",
     "contact_velocities",
     "tire_sideslip_angles",
     "theoretical_slips",
@@ -46,8 +62,10 @@ __all__ = [
     "instantaneous_centre_of_rotation",
 ]
 
-#: Wheel order of every per-wheel array (CONTRACT.md ``tire_sideslip``).
+#: Wheel order of every per-wheel array of the paper's three-axle vehicle (CONTRACT.md ``tire_sideslip``).
 WHEEL_NAMES: tuple[str, ...] = ("FL", "ML", "RL", "FR", "MR", "RR")
+#: Number of axles per side of the contract's ``tire_sideslip`` (float64[6]).
+CONTRACT_AXLES = 3
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -71,6 +89,11 @@ class SkidSteerParams:
         friction: tire–ground friction coefficient μ (the paper plots μ = 0.8).
         gravity: g (m/s²).
         rolling_speed_floor: ε of the brush model's slip denominator (m/s).
+        axle_x: axle positions relative to the CM, front to rear (m, strictly
+            decreasing, at least two); None (default) takes the paper's three
+            from ``axle_spacing_front``, ``axle_spacing_rear`` and
+            ``cm_ahead_of_middle_axle`` (which are then unused). E.g. the
+            4-wheel Husky: ``(0.256, −0.256)``.
     """
 
     mass: float = 3000.0
@@ -87,6 +110,7 @@ class SkidSteerParams:
     friction: float = 0.8
     gravity: float = 9.80665
     rolling_speed_floor: float = 0.05
+    axle_x: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         positive = (
@@ -111,26 +135,86 @@ class SkidSteerParams:
         offset = self.cm_ahead_of_middle_axle
         if not math.isfinite(offset):
             raise ValueError(f"SkidSteerParams.cm_ahead_of_middle_axle must be finite, got {offset}")
+        if self.axle_x is not None:
+            try:
+                xs = tuple(float(v) for v in self.axle_x)
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"SkidSteerParams.axle_x must be None or a sequence of numbers, got {self.axle_x!r}"
+                ) from None
+            if len(xs) < 2 or not all(math.isfinite(v) for v in xs):
+                raise ValueError(f"SkidSteerParams.axle_x must hold at least 2 finite positions (m), got {xs}")
+            if any(b >= a for a, b in zip(xs, xs[1:], strict=False)):
+                raise ValueError(f"SkidSteerParams.axle_x must decrease strictly (front to rear), got {xs}")
+            object.__setattr__(self, "axle_x", xs)
+
+
+def axle_count(p: SkidSteerParams) -> int:
+    """Number of axles per side N (3 for the paper's vehicle)."""
+    return CONTRACT_AXLES if p.axle_x is None else len(p.axle_x)
+
+
+def wheel_names(p: SkidSteerParams) -> tuple[str, ...]:
+    """Names of the 2N wheels in wheel order.
+
+    Three axles: :data:`WHEEL_NAMES`; two: ``FL, RL, FR, RR``; otherwise
+    ``L1 … LN, R1 … RN`` (1 = front).
+    """
+    n = axle_count(p)
+    if n == CONTRACT_AXLES:
+        return WHEEL_NAMES
+    if n == 2:
+        return ("FL", "RL", "FR", "RR")
+    return tuple(f"L{i + 1}" for i in range(n)) + tuple(f"R{i + 1}" for i in range(n))
 
 
 def axle_positions(p: SkidSteerParams) -> Array:
-    """Longitudinal axle positions x_i relative to the CM, front to rear (m), shape (3,)."""
+    """Longitudinal axle positions x_i relative to the CM, front to rear (m), shape (N,)."""
+    if p.axle_x is not None:
+        return np.array(p.axle_x, dtype=float)
     x = p.cm_ahead_of_middle_axle
     return np.array([p.axle_spacing_front - x, -x, -(p.axle_spacing_rear + x)])
 
 
 def wheel_positions(p: SkidSteerParams) -> tuple[Array, Array]:
-    """Contact-point positions (x, y) of the six wheels in wheel order (m), each shape (6,)."""
+    """Contact-point positions (x, y) of the 2N wheels in wheel order (m), each shape (2N,)."""
     xa = axle_positions(p)
+    n = xa.size
     half = 0.5 * p.track
-    return np.concatenate([xa, xa]), np.array([half] * 3 + [-half] * 3)
+    return np.concatenate([xa, xa]), np.array([half] * n + [-half] * n)
+
+
+def contract_tire_sideslip(alpha: Any, p: SkidSteerParams) -> Array:
+    """Per-wheel tire sideslip ``(..., 2N)`` → the contract's six values ``(..., 6)`` (module docstring).
+
+    Three axles: unchanged. N ≠ 3: per side (left, then right) the front
+    axle's α, the α linearly interpolated over the axle positions at the
+    midpoint between the front and the rear axle, and the rear axle's α.
+    """
+    a = np.asarray(alpha, dtype=float)
+    n = axle_count(p)
+    if a.shape[-1:] != (2 * n,):
+        raise ValueError(f"alpha must end in a dimension of 2N = {2 * n} wheels, got shape {a.shape}")
+    if n == CONTRACT_AXLES:
+        return a.copy()
+    xa = axle_positions(p)
+    x_mid = 0.5 * (xa[0] + xa[-1])
+    k = int(np.searchsorted(-xa, -x_mid, side="right")) - 1  # axle k ahead of (or at) x_mid, k + 1 behind
+    k = min(max(k, 0), n - 2)
+    w = (xa[k] - x_mid) / (xa[k] - xa[k + 1])
+    sides = []
+    for side in range(2):
+        s = a[..., side * n : (side + 1) * n]
+        mid = (1.0 - w) * s[..., k] + w * s[..., k + 1]
+        sides += [s[..., 0], mid, s[..., n - 1]]
+    return np.stack(sides, axis=-1)
 
 
 def contact_velocities(vx: Any, vy: Any, yaw_rate: Any, p: SkidSteerParams) -> tuple[Array, Array]:
-    """Velocities of the six contact points in the body frame (paper eqs. 3, 5; MODELS.md B.3).
+    """Velocities of the 2N contact points in the body frame (paper eqs. 3, 5; MODELS.md B.3).
 
     ``v_x,ij = vx − y_j r``, ``v_y,ij = vy + x_i r``. Inputs broadcast; outputs
-    have shape ``(..., 6)``.
+    have shape ``(..., 2N)``.
     """
     xw, yw = wheel_positions(p)
     vx_ = np.asarray(vx, dtype=float)[..., None]
@@ -148,12 +232,12 @@ def tire_sideslip_angles(v_x: Any, v_y: Any) -> Array:
     return np.arctan2(np.asarray(v_y, dtype=float), np.abs(np.asarray(v_x, dtype=float)))
 
 
-def _per_wheel_side(value: Any) -> Array:
-    """Expand a per-side quantity ``(..., 2)`` (left, right) to wheel order ``(..., 6)``."""
+def _per_wheel_side(value: Any, axles: int = CONTRACT_AXLES) -> Array:
+    """Expand a per-side quantity ``(..., 2)`` (left, right) to wheel order ``(..., 2N)``, N = ``axles``."""
     v = np.asarray(value, dtype=float)
     if v.shape[-1:] != (2,):
         raise ValueError(f"per-side array must end in a dimension of 2 (left, right), got shape {v.shape}")
-    return np.repeat(v, 3, axis=-1)
+    return np.repeat(v, axles, axis=-1)
 
 
 def theoretical_slips(wheel_speed: Any, v_x: Any, v_y: Any, p: SkidSteerParams) -> tuple[Array, Array]:
@@ -163,12 +247,12 @@ def theoretical_slips(wheel_speed: Any, v_x: Any, v_y: Any, p: SkidSteerParams) 
 
     Args:
         wheel_speed: wheel angular speeds per side ``(..., 2)`` (left, right),
-            rad/s, or per wheel ``(..., 6)``.
-        v_x, v_y: contact-point velocities ``(..., 6)`` from
+            rad/s, or per wheel ``(..., 2N)``.
+        v_x, v_y: contact-point velocities ``(..., 2N)`` from
             :func:`contact_velocities`.
     """
     w = np.asarray(wheel_speed, dtype=float)
-    omega = _per_wheel_side(w) if w.shape[-1:] == (2,) else w
+    omega = _per_wheel_side(w, axle_count(p)) if w.shape[-1:] == (2,) else w
     rolling = p.wheel_radius * omega
     vr = np.maximum(np.abs(rolling), p.rolling_speed_floor)
     return (rolling - np.asarray(v_x, dtype=float)) / vr, -np.asarray(v_y, dtype=float) / vr
@@ -237,32 +321,35 @@ def quasi_static_loads(ax: Any, ay: Any, p: SkidSteerParams) -> Array:
 
     Rigid body on equal virtual springs: axle loads ``F_i = p + q x_i`` satisfy
     vertical and pitch equilibrium with the inertial force ``−m a_x`` at height
-    H; the lateral transfer ``m a_y H / B`` is split equally between the axles
-    (``a_y > 0``, a left turn, loads the right side). Floored at 0.
+    H (``N p + q Σx_i = m g``, ``p Σx_i + q Σx_i² = −m a_x H``; for two axles
+    the statically determinate split); the lateral transfer ``m a_y H / B`` is
+    split equally between the N axles (``a_y > 0``, a left turn, loads the
+    right side). Floored at 0.
 
     Args:
         ax, ay: body accelerations (m/s², gravity removed), broadcast.
 
     Returns:
-        ``F_z`` per wheel ``(..., 6)`` (N).
+        ``F_z`` per wheel ``(..., 2N)`` (N).
     """
     xa = axle_positions(p)
+    n = float(xa.size)
     s1, s2 = float(np.sum(xa)), float(np.sum(xa**2))
-    d = 3.0 * s2 - s1**2
+    d = n * s2 - s1**2
     m, g, h = p.mass, p.gravity, p.cg_height
     ax_ = np.asarray(ax, dtype=float)[..., None]
     ay_ = np.asarray(ay, dtype=float)[..., None]
     p0 = m * (g * s2 + ax_ * h * s1) / d
-    q = -m * (3.0 * ax_ * h + g * s1) / d
+    q = -m * (n * ax_ * h + g * s1) / d
     axle = p0 + q * xa
-    lateral = m * ay_ * h / (3.0 * p.track)
+    lateral = m * ay_ * h / (n * p.track)
     return np.maximum(np.concatenate([0.5 * axle - lateral, 0.5 * axle + lateral], axis=-1), 0.0)
 
 
 def body_forces(fx: Any, fy: Any, p: SkidSteerParams) -> tuple[Array, Array, Array]:
     """Sum of the tire forces and their yaw moment about the CM (MODELS.md B.6).
 
-    ``M_z = Σ (x_i F_y,ij − y_j F_x,ij)``. Inputs ``(..., 6)``; outputs ``(...)``.
+    ``M_z = Σ (x_i F_y,ij − y_j F_x,ij)``. Inputs ``(..., 2N)``; outputs ``(...)``.
     """
     xw, yw = wheel_positions(p)
     fx_ = np.asarray(fx, dtype=float)

@@ -1,4 +1,4 @@
-"""Observer model of the six-wheel skid-steered vehicle: state [vx, vy, r] ([SS], MODELS.md B.6–B.7).
+"""Observer model of a skid-steered vehicle (N axles per side): state [vx, vy, r] ([SS], MODELS.md B.6–B.7).
 
 :class:`SkidSteerObserverModel` implements
 :class:`~terrain_estimation.filters.base.StateSpaceModel` for the (AN-ST)UKF of
@@ -17,6 +17,8 @@
 All the physics (contact kinematics, brush tire, loads, body forces) comes
 from the shared module :mod:`terrain_estimation.models.skid_steer`; this
 module only adds the time discretisation, the noise and the derived outputs.
+Every per-wheel quantity runs over the vehicle's 2N wheels
+(``SkidSteerParams.axle_x``; the paper's six by default).
 
 **Discretisation (B.6) and sub-steps.** ``f`` is forward Euler of B.6
 repeated over ``N`` equal sub-steps of the step ``dt``. With ``N = 1`` it is
@@ -79,8 +81,8 @@ checked against sensors and model errors:
   walk).
 
 **Derived outputs (B.3).** :func:`side_slips` (κ per side, bounded,
-positive in traction), :func:`tire_sideslips` (six α, wheel order FL, ML,
-RL, FR, MR, RR), :func:`encoder_kinematics` (slip-free ``vx``, ``r`` from the
+positive in traction), :func:`tire_sideslips` (2N α in wheel order: FL, ML,
+RL, FR, MR, RR for the paper's vehicle), :func:`encoder_kinematics` (slip-free ``vx``, ``r`` from the
 wheel speeds alone) and :func:`derived_outputs` (all of them plus body
 sideslip and the ICR with its validity flag).
 """
@@ -180,12 +182,12 @@ def relaxation_rate_per_speed(p: SkidSteerParams) -> float:
 
 @dataclass(slots=True)
 class _StepTerms:
-    """Per-input constants of a step: wheel speeds per wheel, loads, μ, rolling floor, and the
+    """Per-input constants of a step: wheel speeds per wheel (2N), loads, μ, rolling floor, and the
     per-wheel factors of the brush model that depend on the input alone (``R ω``, ``V_r``,
     ``μ F_z``, the saturation limit ``3 μ F_z`` and its divisor). Not modified once built
     (slots, not frozen: built once per step, read by every force evaluation)."""
 
-    omega6: Array
+    omega_wheel: Array
     normal_load: Array
     friction: float
     min_rolling_speed: float
@@ -264,8 +266,9 @@ class SkidSteerObserverModel:
         self._coriolis_sign = np.array([1.0, -1.0])[:, None]
         self._rate_divisor = np.array([self.params.mass, self.params.mass, 1.0])[:, None]
         xa = axle_positions(self.params)
+        n_axles = float(xa.size)
         s1, s2 = float(np.sum(xa)), float(np.sum(xa**2))
-        self._axles = (tuple(xa.tolist()), s1, s2, 3.0 * s2 - s1**2)
+        self._axles = (tuple(xa.tolist()), s1, s2, n_axles * s2 - s1**2, n_axles)
         self._q0_sqrt = np.sqrt(np.array(q))
         self._r0_sqrt = np.diag(np.sqrt(np.array(r)))
         # One-entry cache of the per-input terms: f and h see the same frozen
@@ -342,7 +345,7 @@ class SkidSteerObserverModel:
 
     # -- for the adaptive filter (B.10) ---------------------------------------
     def tire_sideslip(self, x: Array, u: Any = None) -> Array:
-        """Six tire sideslip angles α at the state (paper eq. 6), rad; ``(3,)`` → ``(6,)``."""
+        """The 2N tire sideslip angles α at the state (paper eq. 6), rad; ``(3,)`` → ``(2N,)``."""
         return tire_sideslips(x, self.params)
 
     # -- helpers ----------------------------------------------------------------
@@ -389,19 +392,20 @@ class SkidSteerObserverModel:
         fl, fr = max(abs(rl), floor), max(abs(rr), floor)
         mu_fz = [mu * load for load in normal_load.tolist()]
         limit = [3.0 * v for v in mu_fz]
+        n = len(mu_fz) // 2  # axles per side
         # One array, a row per per-wheel term (one conversion instead of six).
         rows = np.array(
             [
-                [wl, wl, wl, wr, wr, wr],
-                [rl, rl, rl, rr, rr, rr],
-                [fl, fl, fl, fr, fr, fr],
+                [wl] * n + [wr] * n,
+                [rl] * n + [rr] * n,
+                [fl] * n + [fr] * n,
                 mu_fz,
                 limit,
                 [v if v > 0.0 else 1.0 for v in limit],
             ]
         )
         terms = _StepTerms(
-            omega6=rows[0],
+            omega_wheel=rows[0],
             normal_load=normal_load,
             friction=friction,
             min_rolling_speed=rolling,
@@ -453,12 +457,12 @@ class SkidSteerObserverModel:
         """:func:`quasi_static_loads` for one ``(a_x, a_y)``, operation for operation (the same
         floats, a test checks) with the axle sums computed once: it runs once per filter step."""
         p = self.params
-        xa, s1, s2, d = self._axles
+        xa, s1, s2, d, n = self._axles
         m, g, h = p.mass, p.gravity, p.cg_height
         ax, ay = float(ax), float(ay)  # float64 scalars: the same arithmetic, cheaper
         p0 = m * (g * s2 + ax * h * s1) / d
-        q = -m * (3.0 * ax * h + g * s1) / d
-        lateral = m * ay * h / (3.0 * p.track)
+        q = -m * (n * ax * h + g * s1) / d
+        lateral = m * ay * h / (n * p.track)
         half = [0.5 * (p0 + q * x) for x in xa]  # 0.5 · axle, axle = p0 + q x_a (scalars: same floats)
         return np.maximum(np.array([a - lateral for a in half] + [a + lateral for a in half]), 0.0)
 
@@ -469,7 +473,7 @@ class SkidSteerObserverModel:
         xs = np.asarray(x, dtype=float)
         terms = self._terms(u)
         v_x, v_y = contact_velocities(xs[..., 0], xs[..., 1], xs[..., 2], p)
-        sx, sy = theoretical_slips(terms.omega6, v_x, v_y, p)
+        sx, sy = theoretical_slips(terms.omega_wheel, v_x, v_y, p)
         fx, fy = brush_tire_forces(
             sx,
             sy,
@@ -495,7 +499,8 @@ class SkidSteerOutputs:
 
     Attributes:
         slip_left, slip_right: longitudinal slip per side κ (bounded, > 0 in traction).
-        tire_sideslip: six tire sideslip angles α (rad), order FL, ML, RL, FR, MR, RR.
+        tire_sideslip: the 2N tire sideslip angles α (rad) in wheel order (FL, ML,
+            RL, FR, MR, RR for the paper's vehicle).
         body_sideslip: β = atan2(vy, vx) (rad, eq. 40).
         icr_x, icr_y: ICR in body axes (m, eq. 41); 0 when not valid.
         icr_valid: |r| above the threshold (the ICR is meaningless as r → 0).
@@ -529,7 +534,7 @@ def side_slips(x: Any, omega_left: Any, omega_right: Any, p: SkidSteerParams) ->
 
 
 def tire_sideslips(x: Any, p: SkidSteerParams) -> Array:
-    """Six tire sideslip angles α (eqs. 5–6) at state(s) ``x`` ``(..., 3)``, shape ``(..., 6)``."""
+    """The 2N tire sideslip angles α (eqs. 5–6) at state(s) ``x`` ``(..., 3)``, shape ``(..., 2N)``."""
     xs = np.asarray(x, dtype=float)
     v_x, v_y = contact_velocities(xs[..., 0], xs[..., 1], xs[..., 2], p)
     return tire_sideslip_angles(v_x, v_y)

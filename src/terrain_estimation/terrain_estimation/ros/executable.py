@@ -29,11 +29,11 @@ from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from terrain_estimation.config_sections import node_file_values
 from terrain_estimation.params import (
     ROS_PARAMETERS,
     ParameterError,
     ParamSpec,
-    load_parameter_file,
     unknown_parameter_error,
 )
 from terrain_estimation.ros.framework import spin_node
@@ -88,7 +88,7 @@ def build_node(
     specs = _node_specs(node_class, entry)
     values: dict[str, object] = {}
     if use_config and (config or entry.config_path().exists()):
-        values = load_parameter_file(config or entry.config_path(), [entry.node_name], specs=specs)
+        values = node_file_values(config or entry.config_path(), entry.node_name, specs)
     declared = {s.name for s in specs}
     for name in overrides or {}:
         if name not in declared and name not in ROS_PARAMETERS:
@@ -123,7 +123,7 @@ def node_main(
     config = args.config or (str(entry.config_path()) if entry.config_path().exists() else None)
     if config is not None:
         try:
-            load_parameter_file(config, [entry.node_name], specs=_node_specs(node_class, entry))
+            node_file_values(config, entry.node_name, _node_specs(node_class, entry))
         except ParameterError as exc:
             print(f"{prog}: error: {exc}", file=sys.stderr)
             return 2

@@ -7,8 +7,24 @@ Topics (CONTRACT.md, skid-steer section), relative to the vehicle namespace:
 * out: ``odom`` (nav_msgs/Odometry: body-frame twist with covariance, pose by
   dead reckoning), ``skid_steer/state`` (terrain_msgs/SkidSteerState)
 
-Each IMU message is one filter step with the latest wheel speeds (zero-order
-hold, :class:`~terrain_estimation.estimators.skid_steer.SkidSteerEstimator`).
+Each IMU message is one filter step with the wheel speeds at its stamp
+(interpolated between the joint states that bracket it, the newest held
+within an age limit that follows the measured joint-state period:
+:class:`~terrain_estimation.estimators.skid_steer.SkidSteerEstimator`).
+The vehicle may have any number of axles (``vehicle.axle_x``).
+
+``odom`` carries the full twist covariance (the ``vx, vy, r`` block of the
+filter, cross-covariances included; :data:`UNESTIMATED_VARIANCE` on the
+diagonal of ``vz`` and the roll and pitch rates, which are not estimated)
+and the dead-reckoned pose with a covariance that grows (the ``x, y, yaw``
+block; :data:`UNESTIMATED_VARIANCE` for ``z``, roll and pitch). No −1
+anywhere: every entry is a variance.
+
+``skid_steer/state``'s ``tire_sideslip`` (``float64[6]``) holds the six
+wheels of a three-axle vehicle; for N ≠ 3 axles per side, front axle,
+middle (interpolated at the midpoint between front and rear axle) and rear
+axle, left then right
+(:func:`~terrain_estimation.models.skid_steer.contract_tire_sideslip`).
 Input the core rejects (non-finite values, stamps out of order) is counted in
 the diagnostics with the topic, field and value, never passed on. Before the
 adapter, the node checks every message (frame ``frames.<key>``, stamps,
@@ -23,7 +39,6 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -33,22 +48,18 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Header
 
-from terrain_estimation.estimators.skid_steer import (
-    SkidSteerEstimate,
-    SkidSteerEstimator,
-    SkidSteerEstimatorConfig,
-)
-from terrain_estimation.filters.adaptive import StrongTrackingConfig
-from terrain_estimation.models.skid_steer import SkidSteerParams
-from terrain_estimation.params import ParamSpec, ParamValue, default_config_path, load_parameter_file
-from terrain_estimation.ros.framework import (
-    AdapterHealth,
-    TopicSpec,
-    divergence_config,
-    divergence_errors,
-    divergence_specs,
-    input_frame,
-    input_specs,
+from terrain_estimation.estimators.skid_steer import SkidSteerEstimate, SkidSteerEstimator
+from terrain_estimation.models.skid_steer import axle_count
+from terrain_estimation.params import ParamValue
+from terrain_estimation.ros.framework import AdapterHealth, TopicSpec, divergence_errors, input_frame
+from terrain_estimation.ros.skid_steer_params import (
+    ON_TIMEOUT,
+    PARAMETERS,
+    VEHICLE_SPECS_SKID_STEER,
+    estimator_config,
+    husky_overrides,
+    specs_for,
+    vehicle_params,
 )
 from terrain_estimation.ros.time import sec_to_stamp, stamp_to_ns
 from terrain_msgs.msg import SkidSteerState
@@ -56,6 +67,7 @@ from terrain_msgs.msg import SkidSteerState
 __all__ = [
     "VEHICLE_SPECS_SKID_STEER",
     "PARAMETERS",
+    "ON_TIMEOUT",
     "SkidSteerAdapter",
     "estimator_config",
     "vehicle_params",
@@ -64,250 +76,13 @@ __all__ = [
     "make_adapter",
     "specs_for",
     "husky_overrides",
+    "UNESTIMATED_VARIANCE",
 ]
 
-_D = SkidSteerParams()
-_EC = SkidSteerEstimatorConfig()
-
-#: The vehicle's nominal physics ([SS] Table 1, MODELS.md B.2) and its limits; shared with the simulator
-#: (which declares the limits but has no use for them: ``/**`` is read by both nodes).
-VEHICLE_SPECS_SKID_STEER: tuple[ParamSpec, ...] = (
-    ParamSpec("vehicle.kind", "skid_steer", "vehicle model", choices=("skid_steer",), read_only=True),
-    ParamSpec("vehicle.mass", _D.mass, "[kg] vehicle mass m (Table 1)", 1.0, 1e6),
-    ParamSpec("vehicle.yaw_inertia", _D.yaw_inertia, "[kg m^2] yaw inertia I_z (Table 1)", 1e-3, 1e8),
-    ParamSpec("vehicle.axle_spacing_front", _D.axle_spacing_front, "[m] axle 1 to axle 2, a (Table 1)", 1e-3, 50.0),
-    ParamSpec("vehicle.axle_spacing_rear", _D.axle_spacing_rear, "[m] axle 2 to axle 3, b (Table 1)", 1e-3, 50.0),
-    ParamSpec(
-        "vehicle.cm_ahead_of_middle_axle",
-        _D.cm_ahead_of_middle_axle,
-        "[m] centre of mass ahead of axle 2, x (Table 1; negative: behind)",
-        -50.0,
-        50.0,
-    ),
-    ParamSpec("vehicle.track", _D.track, "[m] lateral distance between the wheel contact lines, B", 1e-2, 20.0),
-    ParamSpec("vehicle.cg_height", _D.cg_height, "[m] height of the centre of mass H (Table 1)", 1e-3, 20.0),
-    ParamSpec("vehicle.wheel_radius", _D.wheel_radius, "[m] rolling radius R (Table 1)", 1e-3, 5.0),
-    ParamSpec("vehicle.transmission_ratio", _D.transmission_ratio, "[-] motor to wheel ratio i_g (Table 1)", 1e-3, 1e4),
-    ParamSpec(
-        "vehicle.longitudinal_stiffness",
-        _D.longitudinal_stiffness,
-        "[N] brush longitudinal slip stiffness C_x per wheel (Table 1)",
-        1.0,
-        1e8,
-    ),
-    ParamSpec(
-        "vehicle.cornering_stiffness", _D.cornering_stiffness, "[N/rad] cornering stiffness C_a per wheel", 1.0, 1e8
-    ),
-    ParamSpec("vehicle.friction", _D.friction, "[-] tire-ground friction coefficient mu", 1e-3, 5.0),
-    ParamSpec("vehicle.gravity", _D.gravity, "[m/s^2] gravity", 0.1, 30.0),
-    ParamSpec(
-        "vehicle.max_speed",
-        _EC.max_speed,
-        "[m/s] planar speed the vehicle cannot exceed: an estimate beyond it is a divergence (diagnostic ERROR, "
-        "filter restarted from wheel odometry and gyro). [SS]'s vehicle: "
-        "30 km/h manoeuvres, 20 m/s with margin",
-        0.01,
-        1000.0,
-    ),
-    ParamSpec(
-        "vehicle.max_yaw_rate",
-        _EC.max_yaw_rate,
-        "[rad/s] yaw rate the vehicle cannot exceed: an estimate beyond it is a divergence, as vehicle.max_speed",
-        0.01,
-        100.0,
-    ),
-)
-
-_ST = StrongTrackingConfig()
-
-
-_ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec(
-        "filter.type",
-        "an_stukf",
-        "filter: plain UKF (B.8), strong-tracking UKF (B.9) or adaptive-noise strong-tracking UKF (B.10, the paper's)",
-        choices=("an_stukf", "stukf", "ukf"),
-    ),
-    ParamSpec(
-        "filter.ukf_alpha", 1.0, "[-] sigma-point spread alpha (small values give negative weights, n = 3)", 1e-3, 10.0
-    ),
-    ParamSpec("filter.ukf_beta", 2.0, "[-] UKF beta (2: Gaussian prior)", 0.0, 10.0),
-    ParamSpec("filter.ukf_kappa", 0.0, "[-] UKF kappa (3 - n = 0)", -2.9, 10.0),
-    ParamSpec("filter.gate_threshold", 0.0, "[-] NIS gate on updates (chi^2_3 quantile); 0 disables", 0.0, 1e6),
-    *divergence_specs(
-        "false: with the default filter.r0_diag (4x the accelerometer noise) the mean NIS is about 0.2 against 3 "
-        "on healthy data, every variant (refused for an_stukf, whose adaptive noise rescales the innovations)"
-    ),
-    ParamSpec(
-        "filter.q0_diag",
-        list(_EC.q0_diag),
-        "[(m/s)^2, (m/s)^2, (rad/s)^2] base process noise of [vx, vy, r] per 10 ms step (B.10)",
-        0.0,
-        1e6,
-    ),
-    ParamSpec(
-        "filter.r0_diag",
-        list(_EC.r0_diag),
-        "[(m/s^2)^2, (m/s^2)^2, (rad/s)^2] base measurement noise of [a_x, a_y, r]: accelerometer noise plus "
-        "vibration and gravity leakage through roll and pitch (B.10)",
-        1e-12,
-        1e6,
-    ),
-    ParamSpec(
-        "filter.p0_diag",
-        list(_EC.p0_diag),
-        "[(m/s)^2, (m/s)^2, (rad/s)^2] initial covariance of [vx, vy, r]",
-        1e-12,
-        1e6,
-    ),
-    ParamSpec("strong_tracking.rho", _ST.rho, "[-] forgetting factor of the innovation covariance (B.9)", 1e-3, 1.0),
-    ParamSpec("strong_tracking.beta_w", _ST.beta_w, "[-] weakening factor (>= 1; larger: less eager)", 1.0, 100.0),
-    ParamSpec(
-        "strong_tracking.gamma_th",
-        3.0,
-        "[-] activation threshold: fading only when e'e > gamma_th tr(P_zz); 0 = at every step",
-        0.0,
-        1e6,
-    ),
-    ParamSpec("strong_tracking.lambda_max", _ST.lambda_max, "[-] cap on the fading factor", 1.0, 1e6),
-    ParamSpec("adaptive_noise.k_q", 5.0, "[1/rad] Q0 grows as (1 + k_q mean|alpha|) (B.10)", 0.0, 1e4),
-    ParamSpec("adaptive_noise.k_r", 2.0, "[1/rad] R0 shrinks as 1/(1 + k_r mean|alpha|) (B.10)", 0.0, 1e4),
-    ParamSpec(
-        "estimator.accel_cutoff",
-        2.0,
-        "[Hz] low-pass cut-off of the measured a_x, a_y that feed the load-transfer model",
-        1e-3,
-        1e3,
-    ),
-    ParamSpec(
-        "estimator.min_yaw_rate", 0.02, "[rad/s] the ICR is published (icr_valid) only above this yaw rate", 0.0, 10.0
-    ),
-    ParamSpec(
-        "estimator.min_sideslip_speed",
-        0.2,
-        "[m/s] below this speed the sideslip angles are undefined: published as 0 with variance pi^2",
-        0.0,
-        10.0,
-    ),
-    ParamSpec(
-        "estimator.max_wheel_speed_age",
-        0.05,
-        "[s] wheel speeds further than this from the IMU stamp are stale: the step is skipped",
-        1e-4,
-        10.0,
-    ),
-    ParamSpec("estimator.max_step", 0.1, "[s] a longer gap between IMU samples restarts the filter", 1e-3, 1e4),
-    ParamSpec("joints.left_motor", "left_motor", "joint_states name of the left motor"),
-    ParamSpec("joints.right_motor", "right_motor", "joint_states name of the right motor"),
-    ParamSpec("frames.base_link", "base_link", "child frame of odom (prefixed with the namespace)"),
-    ParamSpec("frames.odom", "odom", "frame of the dead-reckoned pose (prefixed with the namespace)"),
-)
-
-
-#: What the estimator does while an input is silent (shown in the timeout warning).
-ON_TIMEOUT: dict[str, str] = {
-    "imu": "no filter steps: odom and skid_steer/state hold (nothing is published); a gap longer than "
-    "estimator.max_step restarts the filter",
-    "joint_states": "IMU samples whose wheel speeds are older than estimator.max_wheel_speed_age are skipped: "
-    "the estimate holds",
-}
-
-_INPUT_SPECS: tuple[ParamSpec, ...] = (
-    *input_specs("imu", "imu", "imu_link", 0.5, ON_TIMEOUT["imu"]),
-    *input_specs("joint_states", "joint_states", "", 0.5, ON_TIMEOUT["joint_states"]),
-)
-
-
-def specs_for(kind: str = "skid_steer") -> tuple[ParamSpec, ...]:
-    """The estimator's parameter specs (one vehicle kind)."""
-    if kind != "skid_steer":
-        raise ValueError(f"unknown skid-steer vehicle kind {kind!r}")
-    return VEHICLE_SPECS_SKID_STEER + _ESTIMATOR_SPECS + _INPUT_SPECS
-
-
-PARAMETERS = specs_for()
-
-
-def _f(values: Mapping[str, ParamValue], name: str) -> float:
-    return float(values[name])
-
-
-def _triple(values: Mapping[str, ParamValue], name: str) -> tuple[float, float, float]:
-    v = [float(x) for x in values[name]]
-    if len(v) != 3:
-        raise ValueError(f"{name} must hold 3 values ([vx, vy, r] order), got {len(v)}: {v}")
-    return v[0], v[1], v[2]
-
-
-def vehicle_params(values: Mapping[str, ParamValue]) -> SkidSteerParams:
-    """The nominal vehicle of the ``vehicle.*`` parameters."""
-    return SkidSteerParams(
-        mass=_f(values, "vehicle.mass"),
-        yaw_inertia=_f(values, "vehicle.yaw_inertia"),
-        axle_spacing_front=_f(values, "vehicle.axle_spacing_front"),
-        axle_spacing_rear=_f(values, "vehicle.axle_spacing_rear"),
-        cm_ahead_of_middle_axle=_f(values, "vehicle.cm_ahead_of_middle_axle"),
-        track=_f(values, "vehicle.track"),
-        cg_height=_f(values, "vehicle.cg_height"),
-        wheel_radius=_f(values, "vehicle.wheel_radius"),
-        transmission_ratio=_f(values, "vehicle.transmission_ratio"),
-        longitudinal_stiffness=_f(values, "vehicle.longitudinal_stiffness"),
-        cornering_stiffness=_f(values, "vehicle.cornering_stiffness"),
-        friction=_f(values, "vehicle.friction"),
-        gravity=_f(values, "vehicle.gravity"),
-    )
-
-
-def estimator_config(values: Mapping[str, ParamValue]) -> SkidSteerEstimatorConfig:
-    """The core estimator's configuration from validated parameter values.
-
-    Raises:
-        ValueError: inconsistent values (e.g. a noise diagonal of the wrong length).
-    """
-    gate = _f(values, "filter.gate_threshold")
-    gamma_th = _f(values, "strong_tracking.gamma_th")
-    strong = StrongTrackingConfig(
-        rho=_f(values, "strong_tracking.rho"),
-        beta_w=_f(values, "strong_tracking.beta_w"),
-        gamma_th=gamma_th if gamma_th > 0.0 else None,
-        lambda_max=_f(values, "strong_tracking.lambda_max"),
-    )
-    return SkidSteerEstimatorConfig(
-        vehicle=vehicle_params(values),
-        filter=values["filter.type"],
-        ukf_alpha=_f(values, "filter.ukf_alpha"),
-        ukf_beta=_f(values, "filter.ukf_beta"),
-        ukf_kappa=_f(values, "filter.ukf_kappa"),
-        gate_threshold=gate if gate > 0.0 else None,
-        strong_tracking=strong,
-        k_q=_f(values, "adaptive_noise.k_q"),
-        k_r=_f(values, "adaptive_noise.k_r"),
-        q0_diag=_triple(values, "filter.q0_diag"),
-        r0_diag=_triple(values, "filter.r0_diag"),
-        p0_diag=_triple(values, "filter.p0_diag"),
-        accel_cutoff_hz=_f(values, "estimator.accel_cutoff"),
-        min_yaw_rate=_f(values, "estimator.min_yaw_rate"),
-        min_sideslip_speed=_f(values, "estimator.min_sideslip_speed"),
-        max_wheel_speed_age_s=_f(values, "estimator.max_wheel_speed_age"),
-        max_step_s=_f(values, "estimator.max_step"),
-        divergence=divergence_config(values),
-        max_speed=_f(values, "vehicle.max_speed"),
-        max_yaw_rate=_f(values, "vehicle.max_yaw_rate"),
-    )
-
-
-def husky_overrides(path: str | Path | None = None) -> dict[str, Any]:
-    """The estimator's parameters for the BorealTC Husky: ``config/husky.yaml`` (default) read as this node.
-
-    That file's ``/**`` section describes the 4-wheel Husky for the sim-to-real replay and the importer
-    (names this node does not declare, ``vehicle.kind: husky``); its ``/**/skid_steer_estimator`` section
-    holds this node's view of it (three-axle equivalent, noise of the BorealTC IMU, 6.5 Hz wheel speeds).
-    Returns the names this node declares, the section over ``/**``, for ``overrides=`` of
-    :func:`~terrain_estimation.tools.estimate.estimate_bag` (namespace ``/husky``).
-    """
-    values = load_parameter_file(path if path is not None else default_config_path("husky"), ["skid_steer_estimator"])
-    declared = {s.name for s in PARAMETERS}
-    return {name: value for name, value in values.items() if name in declared}
+#: Variance published in ``odom`` for what the estimator does not estimate (pose z, roll, pitch; twist
+#: vz, roll and pitch rates): "unknown" as a number a consumer can fuse (a 1000 m / 1000 rad standard
+#: deviation), never −1.
+UNESTIMATED_VARIANCE = 1.0e6
 
 
 def estimate_to_state_msg(e: SkidSteerEstimate, frame_id: str) -> SkidSteerState:
@@ -339,11 +114,12 @@ def estimate_to_state_msg(e: SkidSteerEstimate, frame_id: str) -> SkidSteerState
 
 
 def estimate_to_odom_msg(e: SkidSteerEstimate, odom_frame: str, base_frame: str) -> Odometry:
-    """nav_msgs/Odometry: body-frame twist [vx, vy, r] with covariance, dead-reckoned planar pose.
+    """nav_msgs/Odometry: body-frame twist [vx, vy, r] with covariance, dead-reckoned planar pose with covariance.
 
     The pose is an integral of the estimated twist with no absolute correction:
-    its covariance is not estimated and is marked unknown (-1 on the diagonal's
-    first element, as sensor_msgs does for a field that is not measured).
+    its ``x, y, yaw`` covariance grows with the twist's (module docstring);
+    ``z``, roll and pitch, and in the twist ``vz`` and the roll and pitch rates,
+    are not estimated and get :data:`UNESTIMATED_VARIANCE`.
     """
     stamp = sec_to_stamp(e.t)
     if _FAST_MESSAGES:
@@ -356,7 +132,7 @@ def estimate_to_odom_msg(e: SkidSteerEstimate, odom_frame: str, base_frame: str)
     msg.pose.pose.position.y = e.y
     msg.pose.pose.orientation.z = math.sin(0.5 * e.yaw)
     msg.pose.pose.orientation.w = math.cos(0.5 * e.yaw)
-    msg.pose.covariance[0] = -1.0
+    msg.pose.covariance = _pose_covariance(e)
     msg.twist.twist.linear.x = e.vx
     msg.twist.twist.linear.y = e.vy
     msg.twist.twist.angular.z = e.yaw_rate
@@ -365,14 +141,25 @@ def estimate_to_odom_msg(e: SkidSteerEstimate, odom_frame: str, base_frame: str)
 
 
 def _twist_covariance(e: SkidSteerEstimate) -> np.ndarray:
-    """The 6×6 twist covariance (row-major, 36): [vx, vy, r] → rows/columns 0, 1, 5 (x, y, z, rx, ry, rz)."""
-    cov = np.zeros(36)
-    cov[_TWIST_COV_INDEX] = e.twist_covariance
+    """The 6×6 twist covariance (row-major, 36): [vx, vy, r] → rows/columns 0, 1, 5 (x, y, z, rx, ry, rz);
+    vz, roll and pitch rate :data:`UNESTIMATED_VARIANCE`."""
+    cov = _UNESTIMATED.copy()
+    cov[_PLANAR_COV_INDEX] = e.twist_covariance
     return cov
 
 
-_TWIST_COV_INDEX = np.array([6 * row + col for row in (0, 1, 5) for col in (0, 1, 5)])
-"""Where the 3×3 covariance of [vx, vy, r] (row-major) goes in the 6×6 twist covariance."""
+def _pose_covariance(e: SkidSteerEstimate) -> np.ndarray:
+    """The 6×6 pose covariance (row-major, 36): [x, y, yaw] → rows/columns 0, 1, 5; z, roll, pitch
+    :data:`UNESTIMATED_VARIANCE`."""
+    cov = _UNESTIMATED.copy()
+    cov[_PLANAR_COV_INDEX] = e.pose_covariance
+    return cov
+
+
+_PLANAR_COV_INDEX = np.array([6 * row + col for row in (0, 1, 5) for col in (0, 1, 5)])
+"""Where a planar 3×3 covariance ([vx, vy, r] or [x, y, yaw], row-major) goes in a 6×6 one."""
+_UNESTIMATED = np.zeros(36)
+_UNESTIMATED[[14, 21, 28]] = UNESTIMATED_VARIANCE  # z (vz), roll (rate), pitch (rate)
 
 # -- message construction without the generated constructors ----------------------------------
 #
@@ -429,8 +216,6 @@ def _fast_messages_apply() -> bool:
 
 
 _FAST_MESSAGES = _fast_messages_apply()
-_POSE_COVARIANCE = np.zeros(36)
-_POSE_COVARIANCE[0] = -1.0  # pose covariance unknown (estimate_to_odom_msg)
 _new = object.__new__
 
 
@@ -498,7 +283,7 @@ def _odom_msg(e: SkidSteerEstimate, stamp: Time, odom_frame: str, base_frame: st
     pose_cov = _new(PoseWithCovariance)
     pose_cov._check_fields = False
     pose_cov._pose = pose
-    pose_cov._covariance = _POSE_COVARIANCE.copy()
+    pose_cov._covariance = _pose_covariance(e)
     twist = _new(Twist)
     twist._check_fields = False
     twist._linear = _vector3(e.vx, e.vy, 0.0)
@@ -540,8 +325,8 @@ class SkidSteerAdapter:
                 fields=("linear_acceleration.x", "linear_acceleration.y", "angular_velocity.z"),
                 covariances=("linear_acceleration_covariance", "angular_velocity_covariance"),
                 gravity_fields=("linear_acceleration.x", "linear_acceleration.y", "linear_acceleration.z"),
-                gravity=_f(values, "vehicle.gravity"),
-                timeout=_f(values, "timeouts.imu"),
+                gravity=float(values["vehicle.gravity"]),
+                timeout=float(values["timeouts.imu"]),
                 on_timeout=ON_TIMEOUT["imu"],
             ),
             TopicSpec(
@@ -550,10 +335,11 @@ class SkidSteerAdapter:
                 JointState,
                 frame_id=input_frame(values, namespace, "joint_states"),
                 fields=(f"velocity[{self.left_joint}]", f"velocity[{self.right_joint}]"),
-                timeout=_f(values, "timeouts.joint_states"),
+                timeout=float(values["timeouts.joint_states"]),
                 on_timeout=ON_TIMEOUT["joint_states"],
             ),
         )
+        self._waits = self.config.wheel_speed_wait_s > 0.0
         self.outputs: Sequence[TopicSpec] = (
             TopicSpec("odom", "odom", Odometry, "estimate"),
             TopicSpec(
@@ -568,13 +354,14 @@ class SkidSteerAdapter:
 
     def reset(self) -> None:
         self.estimator.reset()
-        self.health = AdapterHealth(nis_dof=3)
+        self.health = AdapterHealth(nis_dof=self.estimator.model.measurement_dim)
 
     def handle(self, key: str, msg: Any) -> list[tuple[str, Any]]:
         t = stamp_to_ns(msg.header.stamp) * 1e-9
         if key == "joint_states":
             self._on_joints(t, msg)
-            return []
+            # A joint state releases the IMU samples waiting for it (estimator.wheel_speed_wait > 0 only).
+            return self._outputs() if self._waits else []
         if key != "imu":
             return []
         acc, gyro = msg.linear_acceleration, msg.angular_velocity
@@ -582,6 +369,10 @@ class SkidSteerAdapter:
             self.estimator.add_imu(t, acc.x, acc.y, gyro.z)
         except ValueError as exc:
             self.health.reject(f"imu: {exc}")
+        return self._outputs()
+
+    def _outputs(self) -> list[tuple[str, Any]]:
+        """The messages of the estimates produced since the last call."""
         out: list[tuple[str, Any]] = []
         for e in self._drain():
             if _FAST_MESSAGES:
@@ -629,8 +420,42 @@ class SkidSteerAdapter:
                 slip_right=last.slip_right,
             )
             h.values.update(counts)
+            h.values.update(self._wheel_speed_values())
+            h.values.update({f"tire_scale.{k}": v for k, v in self.estimator.tire_scales.items()})
+            if last.stationary:
+                h.status += ", standing still"
         h.errors = divergence_errors(self.estimator.fault, counts["divergences"])
         return estimates
+
+    def _wheel_speed_values(self) -> dict[str, Any]:
+        """The wheel-speed lookup for diagnostics: method, measured joint-state rate, age limit."""
+        period = self.estimator.wheel_speed_period_s
+        return {
+            "wheel_speed_method": self.config.wheel_speed_interpolation,
+            "wheel_speed_rate_hz": 1.0 / period if period else 0.0,
+            "wheel_speed_max_age_s": self.estimator.wheel_speed_max_age_s,
+        }
+
+    def summary_lines(self) -> list[str]:
+        """What the offline tool's summary says about this run beyond the messages: the observer model,
+        the wheel-speed lookup with the measured rate and the counts of steps interpolated, held and stale,
+        the zero-velocity updates and the estimated tire scales."""
+        est, cfg = self.estimator, self.config
+        c = est.counter_values()
+        period = est.wheel_speed_period_s
+        rate = f"{1.0 / period:.3g} Hz measured" if period else "rate not measured"
+        age = "fixed" if cfg.max_wheel_speed_age_s is not None else f"{cfg.wheel_speed_age_periods:g} periods"
+        lines = [
+            f"skid-steer: model {cfg.model}, filter {cfg.filter}, {axle_count(cfg.vehicle)} axles per side",
+            f"  wheel speeds: {cfg.wheel_speed_interpolation} ({rate}; age limit {est.wheel_speed_max_age_s:.3g} s, "
+            f"{age}): steps {c['wheel_speeds_interpolated']} interpolated, {c['wheel_speeds_held']} held, "
+            f"{c['stale_wheel_speeds']} IMU samples stale, {c['no_wheel_speeds']} before any wheel speed",
+            f"  zero-velocity updates: {c['zero_velocity_updates']} of {c['steps']} steps",
+        ]
+        scales = est.tire_scales
+        if scales:
+            lines.append("  tire scales (last): " + ", ".join(f"{k} {v:.3g}" for k, v in scales.items()))
+        return lines
 
 
 def make_adapter(values: Mapping[str, ParamValue], namespace: str) -> SkidSteerAdapter:

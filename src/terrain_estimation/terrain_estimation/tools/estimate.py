@@ -6,9 +6,20 @@ them), and writes the estimates to a new bag, atomically. The estimates are
 identical to those of the live node fed the same messages: both go through
 the same adapter (tested in ``test/test_live_offline.py``).
 
-A summary goes to stdout: messages read, rejected (by reason) and written, the
-last estimate, and, when the bag carries ``ground_truth/<topic>`` for an
-estimate topic (a simulator's bag), the error of every numeric field against it.
+A summary goes to stdout: messages read, rejected (by reason) and written, what
+the vehicle's adapter says about the run (its ``summary_lines()``, if it has
+one: e.g. the skid steer's wheel-speed lookup and measured rate), the last
+estimate, and, when the bag carries ``ground_truth/<topic>`` for an estimate
+topic (a simulator's bag), the error of every numeric field against it.
+
+``--config`` may be a file that describes another model of the vehicle in its
+``/**`` section (``vehicle.kind`` other than the estimator's, e.g.
+``config/husky.yaml``: the 4-wheel Husky of the sim-to-real replay) and the
+estimator's view in the estimator's own section: then, as rcl applies such a
+file to the node, the names of ``/**`` the estimator declares are taken, the
+others are left to the file's other readers, and the estimator's section
+(checked strictly) goes over them (:func:`config_values`,
+:mod:`terrain_estimation.config_sections`).
 
 Exit status (``terrain_estimation.cli``): 0 estimates written; 2 the input
 cannot be used — nothing is written: a missing or corrupt bag, a topic recorded
@@ -33,13 +44,14 @@ import numpy as np
 
 from terrain_estimation.bag import AtomicBagWriter, bag_contents, msgtype_name, read_bag
 from terrain_estimation.cli import EXIT_OK, InputError, run_cli
+from terrain_estimation.config_sections import describes_another_kind, node_file_values
 from terrain_estimation.outputs import check_output_path
-from terrain_estimation.params import parse_override
+from terrain_estimation.params import ParamValue, parse_override, resolve_parameters
 from terrain_estimation.ros.framework import JudgedInputs
 from terrain_estimation.ros.validation import InputGuard, first_nonfinite
 from terrain_estimation.vehicles import VEHICLES, estimator_parameters, get_vehicle
 
-__all__ = ["EstimationRun", "estimate_bag", "run_adapter", "main", "numeric_fields", "topic_name"]
+__all__ = ["EstimationRun", "config_values", "estimate_bag", "run_adapter", "main", "numeric_fields", "topic_name"]
 
 
 def topic_name(namespace: str, relative: str) -> str:
@@ -90,6 +102,7 @@ class EstimationRun:
     divergences: int = 0  # filter divergences caught and restarted (the adapter's health counters)
     limit_resets: int = 0  # ... of which estimates beyond the vehicle's stated limits
     outputs_dropped: dict[str, int] = field(default_factory=dict)  # non-finite estimates never written
+    notes: list[str] = field(default_factory=list)  # the adapter's own summary lines (summary_lines())
 
     def messages(self, topic: str) -> list[Any]:
         return [m for t, m, _ in self.outputs if t == topic]
@@ -184,13 +197,37 @@ def estimate_bag(
     """Run ``vehicle``'s estimator over ``bag`` (see :func:`run_adapter`)."""
     entry = get_vehicle(vehicle)
     ns = namespace if namespace is not None else entry.namespace
-    values = estimator_parameters(entry, config, overrides)
+    values = config_values(entry, config, overrides)
     adapter = entry.make_adapter(values, ns)
     run = run_adapter(adapter, ns, bag, progress=progress, values=values)
     health = getattr(getattr(adapter, "health", None), "values", {})
     run.divergences = int(health.get("divergences", 0))
     run.limit_resets = int(health.get("limit_resets", 0))
+    summary = getattr(adapter, "summary_lines", None)
+    run.notes = list(summary()) if callable(summary) else []
     return run
+
+
+def config_values(
+    entry: Any, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None
+) -> dict[str, ParamValue]:
+    """The estimator's parameters: specs' defaults < ``config`` (default ``config/<vehicle>.yaml``) < ``overrides``.
+
+    :func:`~terrain_estimation.vehicles.estimator_parameters`, except that a file whose ``/**`` section
+    describes another vehicle kind (``config/husky.yaml``) is read as rcl applies it to the node
+    (:func:`~terrain_estimation.config_sections.node_file_values`).
+
+    Raises:
+        ParameterError: an unknown name or invalid value (in the estimator's section, or in ``overrides``).
+    """
+    from terrain_estimation.ros.framework import EstimatorNode
+
+    specs = tuple(EstimatorNode.COMMON_SPECS) + tuple(entry.specs)
+    path = Path(config) if config is not None else None
+    if path is None or not path.exists() or not describes_another_kind(path, entry.node_name, specs):
+        return estimator_parameters(entry, config, overrides)
+    values = node_file_values(path, entry.node_name, specs)
+    return resolve_parameters(specs, {**values, **(overrides or {})}, strict=True, source="--param")
 
 
 def _stamp(msg: Any) -> float:
@@ -274,6 +311,7 @@ def _summary_lines(run: EstimationRun) -> Iterator[str]:
         yield f"  filter diverged {run.divergences} time(s){beyond}: caught and restarted"
     for reason, count in sorted(run.outputs_dropped.items()):
         yield f"  not written {count}: {reason}"
+    yield from run.notes
     topics = sorted({t for t, _, _ in run.outputs})
     for topic in topics:
         msgs = run.messages(topic)

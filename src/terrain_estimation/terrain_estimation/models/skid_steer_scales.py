@@ -1,0 +1,346 @@
+"""Skid-steer observer with tire-parameter scale states: model error the filter can absorb (issue 20 item 3).
+
+The 3-state observer (:mod:`~terrain_estimation.models.skid_steer_observer`)
+sees the lateral velocity only through its tire model: ``h = ΣF(x)/m`` with
+the nominal friction μ, cornering stiffness C_α and longitudinal stiffness C_x
+(MODELS.md B.12). A wrong C_α or μ biases ``v_y`` and no Q/R removes it. Here
+the state is augmented with the logarithms of multiplicative scales of a
+chosen subset of those parameters::
+
+    x = [vx, vy, r, ln s_1, …, ln s_k],     s_j ∈ {s_μ, s_Cα, s_Cx}
+    μ_eff = s_μ μ,   C_α,eff = s_Cα C_α,   C_x,eff = s_Cx C_x
+
+Each ``ln s`` is a random walk (slowly varying terrain and tire; ``walk_std``
+per √s), optionally mean-reverting to 0 (s = 1) with the time constant
+``reversion_time_s`` (a first-order Gauss–Markov process: where nothing is
+learned, e.g. in straight driving for ``s_Cα``, the scale returns to the
+nominal instead of wandering), bounded to ``[ln s_min, ln s_max]`` (a scale is clipped wherever it is
+used and after each step, so a sigma point beyond the bound acts as the
+bound). Logarithms keep the scales positive and make the random walk relative
+(a 10 % change is as likely at any level).
+
+What makes the scales observable: in a turn the measured lateral specific
+force fixes ``ΣF_y`` and the gyro's yaw rate (through the yaw-moment
+balance ``I_z ṙ = M_z``) fixes the moment; the two depend differently on
+``v_y`` and on the stiffness (the lateral forces of the front and rear axles
+enter the moment with opposite arms), so ``v_y`` and ``s_Cα`` are both
+determined. In straight driving ``s_Cα`` is not observable and its variance
+grows with the random walk until the next turn; ``s_μ`` only matters where
+the tires saturate (a tight skid-steer turn), ``s_Cx`` through the
+longitudinal slip against the measured ``a_x``.
+
+The forces are the shared brush model (:mod:`~terrain_estimation.models.skid_steer`,
+MODELS.md B.4) evaluated with the per-point effective parameters:
+:func:`scaled_force_sums`. The process is the B.6 forward Euler of the
+observer with its sub-step rule (the relaxation-rate bound grows with the
+largest stiffness scale of the points).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from terrain_estimation.filters.base import Array
+from terrain_estimation.models.skid_steer import SkidSteerParams
+from terrain_estimation.models.skid_steer_observer import (
+    DEFAULT_Q0_DIAG,
+    DEFAULT_R0_DIAG,
+    SkidSteerObserverModel,
+    _StepTerms,
+    tire_sideslips,
+)
+
+__all__ = [
+    "SCALE_NAMES",
+    "TireScaleConfig",
+    "SkidSteerTireScaleModel",
+    "scaled_force_sums",
+]
+
+#: The tire parameters that may carry a scale state, in state order.
+SCALE_NAMES: tuple[str, ...] = ("friction", "cornering_stiffness", "longitudinal_stiffness")
+
+
+@dataclass(frozen=True)
+class TireScaleConfig:
+    """Which tire parameters carry a scale state, and how the scales move.
+
+    Attributes:
+        states: names from :data:`SCALE_NAMES` (any subset, in any order;
+            stored in :data:`SCALE_NAMES` order). Empty: no scale state.
+        walk_std: random-walk standard deviation of each ``ln s`` (1/√s):
+            0.02 lets a scale drift by ≈ 6 % in 10 s.
+        initial_std: standard deviation of ``ln s`` at (re)initialisation
+            (0.3: the nominal value is right within ≈ ±35 %).
+        min_scale, max_scale: bounds of every scale (dimensionless, 0 < min < 1 < max).
+        reversion_time_s: time constant of the reversion of each ``ln s`` to 0
+            (s); 0: none (a pure random walk).
+    """
+
+    states: tuple[str, ...] = ("cornering_stiffness",)
+    walk_std: float = 0.02
+    initial_std: float = 0.3
+    min_scale: float = 0.25
+    max_scale: float = 4.0
+    reversion_time_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        names = tuple(str(s) for s in self.states)
+        unknown = [s for s in names if s not in SCALE_NAMES]
+        if unknown or len(set(names)) != len(names):
+            raise ValueError(f"TireScaleConfig.states must be distinct names of {SCALE_NAMES}, got {self.states!r}")
+        object.__setattr__(self, "states", tuple(s for s in SCALE_NAMES if s in names))
+        for name in ("walk_std", "initial_std", "reversion_time_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"TireScaleConfig.{name} must be finite and >= 0, got {value}")
+        lo, hi = self.min_scale, self.max_scale
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 < lo < 1.0 < hi):
+            raise ValueError(
+                f"TireScaleConfig.min_scale and max_scale must satisfy 0 < min < 1 < max, got {lo} and {hi}"
+            )
+
+    @property
+    def count(self) -> int:
+        """Number of scale states k."""
+        return len(self.states)
+
+
+def scaled_force_sums(base: SkidSteerObserverModel, c: Array, terms: _StepTerms, multipliers: Array | None) -> Array:
+    """``[ΣF_x, ΣF_y, M_z]`` ``(3, m)`` of the brush model (B.3–B.6) with per-point parameter scales.
+
+    Args:
+        base: the nominal observer model (geometry, stiffnesses, loads).
+        c: states as component rows ``(3, m)`` (``vx, vy, r``; m/s, m/s, rad/s).
+        terms: the step's per-input terms (``base._terms(u)``).
+        multipliers: ``(3, m)`` scales of ``μ, C_α, C_x`` per point (rows in
+            :data:`SCALE_NAMES` order), or None for the nominal model (then
+            exactly the observer's own force sums).
+
+    Returns:
+        Forces (N) and yaw moment (N·m) per point.
+    """
+    if multipliers is None:
+        return base._force_sums(c, terms)
+    v = c[:2, :, None] - c[2, :, None] * base._contact_arm  # contact velocities (2, m, 2N)
+    np.subtract(terms.rolling, v[0], out=v[0])
+    v /= terms.rolling_floored  # [σ_x, −σ_y]
+    stiffness = base._stiffness * multipliers[[2, 1], :, None]  # [C_x s_Cx, −C_α s_Cα] (2, m, 1)
+    v *= stiffness
+    gamma = np.hypot(v[0], v[1])
+    mu_fz = terms.mu_fz * multipliers[0][:, None]  # (m, 2N)
+    limit = 3.0 * mu_fz
+    t = np.minimum(gamma, limit)
+    t /= np.where(limit > 0.0, limit, 1.0)
+    force = mu_fz * t * (3.0 - 3.0 * t + t * t)
+    scale = np.divide(force, gamma, out=np.zeros(gamma.shape), where=gamma > 0.0)
+    per_wheel = np.empty((3, *gamma.shape))
+    fxy = np.multiply(v, scale, out=per_wheel[:2])
+    moment = fxy * base._moment_arm
+    np.add(moment[1], moment[0], out=per_wheel[2])
+    return np.add.reduce(per_wheel, axis=-1)
+
+
+class _ScaledModelBase:
+    """What the scale-augmented models share: the state layout, the scales, ``h`` and the noise."""
+
+    def __init__(
+        self,
+        params: SkidSteerParams | None,
+        scales: TireScaleConfig,
+        *,
+        q0_diag: Sequence[float],
+        r0_diag: Sequence[float],
+        q_step_dt: float,
+        substeps: int,
+        max_euler_gain: float | None,
+        max_substeps: int,
+    ) -> None:
+        if not isinstance(scales, TireScaleConfig):
+            raise ValueError(f"scales must be a TireScaleConfig, got {type(scales).__name__}")
+        self.base = SkidSteerObserverModel(
+            params,
+            q0_diag=tuple(q0_diag),  # type: ignore[arg-type]
+            r0_diag=tuple(r0_diag),  # type: ignore[arg-type]
+            q_step_dt=q_step_dt,
+            substeps=substeps,
+            max_euler_gain=max_euler_gain,
+            max_substeps=max_substeps,
+        )
+        self.params = self.base.params
+        self.scales = scales
+        self._rows = np.array([SCALE_NAMES.index(s) for s in scales.states], dtype=int)
+        self._log_bounds = (math.log(scales.min_scale), math.log(scales.max_scale))
+        self.q0_diag = self.base.q0_diag
+        self.r0_diag = self.base.r0_diag
+        self.q_step_dt = self.base.q_step_dt
+
+    @property
+    def state_dim(self) -> int:
+        return 3 + self.scales.count
+
+    @property
+    def measurement_dim(self) -> int:
+        return 3
+
+    # -- state layout ---------------------------------------------------------------
+    def _rows_of(self, x: Array) -> Array:
+        xs = np.asarray(x, dtype=float)
+        n = self.state_dim
+        if xs.shape[-1:] != (n,):
+            raise ValueError(f"x must have shape ({n},) or (..., {n}), got {xs.shape}")
+        return xs.reshape(-1, n).T
+
+    def _multipliers(self, rows: Array) -> Array | None:
+        """``(3, m)`` scales of μ, C_α, C_x of the points (None without scale states)."""
+        if not self.scales.count:
+            return None
+        lo, hi = self._log_bounds
+        mult = np.ones((3, rows.shape[1]))
+        mult[self._rows] = np.exp(np.clip(rows[3:], lo, hi))
+        return mult
+
+    def scale_values(self, x: Array) -> tuple[float, ...]:
+        """The scales ``s = exp(ln s)`` of one state ``(n,)``, bounded, in :attr:`scales` ``.states`` order."""
+        lo, hi = self._log_bounds
+        return tuple(math.exp(min(max(float(v), lo), hi)) for v in np.asarray(x, dtype=float)[3:])
+
+    def initial_scale_covariance(self) -> Array:
+        """``diag(initial_std²)`` of the scale states ``(k, k)``."""
+        return np.eye(self.scales.count) * self.scales.initial_std**2
+
+    # -- StateSpaceModel ------------------------------------------------------------
+    def h(self, x: Array, u: Any) -> Array:
+        """``[ΣF_x/m, ΣF_y/m, r]`` at the state(s) with their scales: ``(n,)``/``(m, n)`` → ``(3,)``/``(m, 3)``."""
+        xs = np.asarray(x, dtype=float)
+        rows = self._rows_of(xs)
+        terms = self.base._terms(self._wheel_input(u))
+        sums = scaled_force_sums(self.base, rows[:3], terms, self._multipliers(rows))
+        out = np.empty((rows.shape[1], 3))
+        out[:, 0] = sums[0] / self.params.mass
+        out[:, 1] = sums[1] / self.params.mass
+        out[:, 2] = rows[2]
+        return out.reshape(*xs.shape[:-1], 3)
+
+    def measurement_noise_sqrt(self) -> Array:
+        """``√R = diag(√r0)``."""
+        return self.base.measurement_noise_sqrt()
+
+    def _scale_noise(self, dt: float) -> Array:
+        return np.full(self.scales.count, self.scales.walk_std * math.sqrt(dt))
+
+    def tire_sideslip(self, x: Array, u: Any = None) -> Array:
+        """The 2N tire sideslip angles α at the motion part of the state (rad), for B.10."""
+        return tire_sideslips(np.asarray(x, dtype=float)[..., :3], self.params)
+
+    def forces(self, x: Array, u: Any) -> tuple[Array, Array, Array]:
+        """``(ΣF_x, ΣF_y, M_z)`` at the state(s) ``(..., n)`` with their scales (N, N, N·m)."""
+        xs = np.asarray(x, dtype=float)
+        rows = self._rows_of(xs)
+        sums = scaled_force_sums(self.base, rows[:3], self.base._terms(self._wheel_input(u)), self._multipliers(rows))
+        shape = xs.shape[:-1]
+        return sums[0].reshape(shape)[()], sums[1].reshape(shape)[()], sums[2].reshape(shape)[()]
+
+    def _wheel_input(self, u: Any) -> Any:
+        return u
+
+    def _clip_scales(self, out: Array, dt: float) -> None:
+        """Revert the log-scales ``out[3:]`` (rows) towards 0 over ``dt`` (if set) and bound them, in place."""
+        if self.scales.count:
+            tau = self.scales.reversion_time_s
+            if tau > 0.0:
+                out[3:] *= math.exp(-dt / tau)
+            lo, hi = self._log_bounds
+            np.clip(out[3:], lo, hi, out=out[3:])
+
+
+class SkidSteerTireScaleModel(_ScaledModelBase):
+    """Brush-model process (B.6) with tire-parameter scale states (module docstring).
+
+    State ``[vx, vy, r, ln s…]`` (m/s, m/s, rad/s, −); input
+    :class:`~terrain_estimation.models.skid_steer_observer.SkidSteerInput`;
+    measurement ``[a_x, a_y, r]`` as the observer's.
+
+    Args:
+        params: vehicle (nominal μ, C_α, C_x that the scales multiply).
+        scales: which scales and their random walk.
+        q0_diag, r0_diag, q_step_dt, substeps, max_euler_gain, max_substeps:
+            as :class:`~terrain_estimation.models.skid_steer_observer.SkidSteerObserverModel`
+            (``q0_diag`` for the three motion states).
+
+    Raises:
+        ValueError: on invalid arguments.
+    """
+
+    def __init__(
+        self,
+        params: SkidSteerParams | None = None,
+        scales: TireScaleConfig | None = None,
+        *,
+        q0_diag: Sequence[float] = DEFAULT_Q0_DIAG,
+        r0_diag: Sequence[float] = DEFAULT_R0_DIAG,
+        q_step_dt: float = 0.01,
+        substeps: int = 1,
+        max_euler_gain: float | None = 0.5,
+        max_substeps: int = 1000,
+    ) -> None:
+        super().__init__(
+            params,
+            scales if scales is not None else TireScaleConfig(),
+            q0_diag=q0_diag,
+            r0_diag=r0_diag,
+            q_step_dt=q_step_dt,
+            substeps=substeps,
+            max_euler_gain=max_euler_gain,
+            max_substeps=max_substeps,
+        )
+
+    def f(self, x: Array, u: Any, dt: float) -> Array:
+        """Forward Euler of B.6 over sub-steps with each point's scales; the scales are held (and bounded).
+
+        Raises:
+            ValueError: ``dt`` not finite and > 0, a non-input ``u``, or more
+                than ``max_substeps`` sub-steps needed.
+        """
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"dt must be finite and > 0, got {dt}")
+        xs = np.asarray(x, dtype=float)
+        rows = self._rows_of(xs).copy()
+        terms = self.base._terms(u)
+        mult = self._multipliers(rows)
+        stiffest = 1.0 if mult is None else float(np.max(mult[1:]))
+        n_sub = self._substeps(terms, dt, stiffest)
+        delta = dt / n_sub
+        p = self.params
+        c = rows[:3]
+        for _ in range(n_sub):
+            rate = scaled_force_sums(self.base, c, terms, mult) / self.base._rate_divisor
+            rate[0] += c[1] * c[2]
+            rate[1] -= c[0] * c[2]
+            rate[2] /= p.yaw_inertia
+            c += delta * rate
+        self._clip_scales(rows, dt)
+        return np.ascontiguousarray(rows.T).reshape(xs.shape)
+
+    def _substeps(self, terms: _StepTerms, dt: float, stiffness_scale: float) -> int:
+        base = self.base
+        if base.max_euler_gain is None:
+            return base.substeps
+        rate = base.relaxation_rate_per_speed * stiffness_scale / terms.min_rolling_speed
+        n = max(base.substeps, math.ceil(dt * rate / base.max_euler_gain - 1e-9))
+        if n > base.max_substeps:
+            raise ValueError(
+                f"step of {dt} s needs {n} Euler sub-steps at rolling speed {terms.min_rolling_speed} m/s "
+                f"(max_substeps = {base.max_substeps})"
+            )
+        return n
+
+    def process_noise_sqrt(self, x: Array, u: Any, dt: float) -> Array:
+        """``diag(√(q0 dt/q_step_dt), walk_std √dt …)``: B.10 base noise and the scales' random walk."""
+        motion = np.sqrt(np.asarray(self.q0_diag, dtype=float) * (dt / self.q_step_dt))
+        return np.diag(np.concatenate([motion, self._scale_noise(dt)]))
