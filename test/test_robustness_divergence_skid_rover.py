@@ -295,7 +295,7 @@ def test_skid_steer_covariance_blow_up_restarts_from_the_last_good_estimate() ->
     hit = seen[fault_step]
     assert hit.initialised and not hit.accepted
     assert good[0] is not None
-    np.testing.assert_allclose((hit.vx, hit.vy, hit.yaw_rate), good[0].x)
+    np.testing.assert_allclose((hit.vx, hit.vy, hit.yaw_rate), good[0].x[:3])  # [vx, vy, r, scale states]
     np.testing.assert_allclose((hit.vx_variance, hit.vy_variance, hit.yaw_rate_variance), est.config.p0_diag)
     assert max(e.vx_variance for e in seen) <= 1.0  # the blown-up covariance never came out
     assert est.fault is None and not adapter.health.errors
@@ -327,7 +327,7 @@ def test_skid_steer_non_finite_model_output_is_a_divergence(monkeypatch: pytest.
     assert faults[300] is not None and "filter step failed" in faults[300]
     for k in (300, 301, 302):  # each failed step restarts from the same last good estimate
         assert seen[k].initialised
-        np.testing.assert_allclose((seen[k].vx, seen[k].vy, seen[k].yaw_rate), good[0].x)
+        np.testing.assert_allclose((seen[k].vx, seen[k].vy, seen[k].yaw_rate), good[0].x[:3])
     assert est.fault is None
 
 

@@ -53,3 +53,16 @@ def test_a_window_without_estimates_is_an_error() -> None:
     sim = _sim()
     with pytest.raises(ValueError, match="no estimate inside"):
         score_run(sim, _run(sim, (0, 0, 0), (1, 1, 1)), scenario="s", filter_name="f", window=(50, 60))
+
+
+def test_command_line_writes_its_section(tmp_path, capsys) -> None:
+    """One seed of the acceleration run through every filter of the comparison; a partial set is no verdict."""
+    from terrain_estimation.tools.skid_compare import FILTERS, main
+
+    out = tmp_path / "fair.md"
+    assert main(["--seeds", "1", "--jobs", "1", "--scenarios", "straight_acceleration", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "fair-comparison" in text and all(f"| straight_acceleration | {f} | 1 |" in text for f in FILTERS)
+    assert "nan" not in text.split("| straight_acceleration |")[1].split("\n")[0]
+    assert main(["--seeds", "0"]) == 2
+    assert "--seeds and --jobs must be >= 1" in capsys.readouterr().err

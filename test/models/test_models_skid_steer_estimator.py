@@ -81,7 +81,7 @@ def all_floats_finite(e: SkidSteerEstimate) -> bool:
 
 @pytest.mark.parametrize("variant", ["ukf", "stukf", "an_stukf"])
 def test_converges_from_a_wrong_start(variant):
-    cfg = SkidSteerEstimatorConfig(filter=variant, initial_state=(1.0, 0.2, 0.05))  # truth starts at (0.5, 0, 0)
+    cfg = SkidSteerEstimatorConfig.paper(filter=variant, initial_state=(1.0, 0.2, 0.05))  # truth starts at (0.5, 0, 0)
     est = SkidSteerEstimator(cfg)
     out = feed(est, DATA)
     assert len(out) == len(DATA)

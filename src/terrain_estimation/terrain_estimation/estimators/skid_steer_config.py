@@ -49,10 +49,22 @@ from terrain_estimation.models.skid_steer_kinematic import (
     DEFAULT_TIRE_MOMENT_STD,
     SkidSteerKinematicModel,
 )
-from terrain_estimation.models.skid_steer_observer import DEFAULT_Q0_DIAG, DEFAULT_R0_DIAG, SkidSteerObserverModel
+from terrain_estimation.models.skid_steer_observer import DEFAULT_Q0_DIAG, SkidSteerObserverModel
+from terrain_estimation.models.skid_steer_observer import DEFAULT_R0_DIAG as PAPER_R0_DIAG
 from terrain_estimation.models.skid_steer_scales import SkidSteerTireScaleModel, TireScaleConfig
 
-__all__ = ["MODELS", "ModelKind", "SkidSteerEstimatorConfig"]
+__all__ = ["CONSISTENT_Q0_DIAG", "CONSISTENT_R0_DIAG", "MODELS", "ModelKind", "SkidSteerEstimatorConfig"]
+
+#: Default process noise of [vx, vy, r] per 10 ms step ((m/s)², (m/s)², (rad/s)²): the paper's B.10 values
+#: (DEFAULT_Q0_DIAG, 0.02 m/s and 0.005 rad/s per step) × 0.03, sized with the default model (UKF over
+#: brush_scales) so that the mean NIS and NEES sit near 3 on the nominal truth plant (magic-formula tire,
+#: roll/pitch dynamics, relaxation; small-radius turn, 2 seeds; the grid and its figures are in
+#: docs/results/skid_steer.md, "Consistent tuning"). B.10's Q0 gives a mean NIS of 0.2-0.4 there.
+CONSISTENT_Q0_DIAG: tuple[float, float, float] = tuple(0.03 * q for q in DEFAULT_Q0_DIAG)  # type: ignore[assignment]
+#: Default measurement noise of [a_x, a_y, r] ((m/s²)², (m/s²)², (rad/s)²): an accelerometer σ of 0.05 m/s²
+#: and a gyro σ of 0.002 rad/s, a MEMS IMU at 100 Hz (the simulator's sensors). Set them to the real IMU's
+#: noise plus vibration (config/husky.yaml: 2 m/s², 0.01 rad/s on a small unsuspended robot).
+CONSISTENT_R0_DIAG: tuple[float, float, float] = (0.05**2, 0.05**2, 0.002**2)
 
 ModelKind = Literal["brush", "brush_scales", "kinematic", "kinematic_scales"]
 #: The observer models the estimator can run (module docstring).
@@ -72,7 +84,9 @@ class SkidSteerEstimatorConfig:
             to the innovations, B.12) or ``"adaptive_sideslip"`` (that plus
             the B.10 law, guarded at low speed);
             :class:`~terrain_estimation.filters.an_stukf.AdaptiveStrongTrackingUKF`.
-        model: observer model (module docstring); default ``"brush"``.
+        model: observer model (module docstring); default ``"brush_scales"``
+            (the brush model with the cornering-stiffness scale as a state: the
+            best of the four on the independent truth plant, docs/results/skid_steer.md).
         tire_scales: scale states of the ``*_scales`` models (ignored by the others).
         process_accel_std: σ_proc of the kinematic models (m/s²): accelerometer
             noise, vibration and gravity leakage integrated by the process.
@@ -149,8 +163,8 @@ class SkidSteerEstimatorConfig:
     """
 
     vehicle: SkidSteerParams = field(default_factory=SkidSteerParams)
-    filter: Variant = "an_stukf"
-    model: ModelKind = "brush"
+    filter: Variant = "ukf"
+    model: ModelKind = "brush_scales"
     tire_scales: TireScaleConfig = field(default_factory=TireScaleConfig)
     process_accel_std: float = DEFAULT_PROCESS_ACCEL_STD
     tire_model_std: float = DEFAULT_TIRE_MODEL_STD
@@ -163,9 +177,9 @@ class SkidSteerEstimatorConfig:
     k_q: float = 5.0
     k_r: float = 2.0
     noise_adaptation: InnovationNoiseConfig = field(default_factory=InnovationNoiseConfig)
-    q0_diag: tuple[float, float, float] = DEFAULT_Q0_DIAG
+    q0_diag: tuple[float, float, float] = CONSISTENT_Q0_DIAG
     q_step_dt: float = 0.01
-    r0_diag: tuple[float, float, float] = DEFAULT_R0_DIAG
+    r0_diag: tuple[float, float, float] = CONSISTENT_R0_DIAG
     substeps: int = 1
     max_euler_gain: float | None = 0.5
     max_substeps: int = 1000
@@ -257,6 +271,19 @@ class SkidSteerEstimatorConfig:
         # The filter and model validate their own parameters.
         self.make_model()
         self.make_filter()
+
+    @classmethod
+    def paper(cls, **changes: Any) -> SkidSteerEstimatorConfig:
+        """[SS]'s filter as reconstructed (MODELS.md B.6-B.10): AN-STUKF over the 3-state brush model with
+        B.10's Q0 and R0 (``filter`` may be changed to the paper's "ukf" or "stukf"); ``changes`` as for the
+        constructor. The defaults of the constructor are the project's (UKF over brush_scales, consistent Q0/R0)."""
+        paper: dict[str, Any] = {
+            "filter": "an_stukf",
+            "model": "brush",
+            "q0_diag": DEFAULT_Q0_DIAG,
+            "r0_diag": PAPER_R0_DIAG,
+        }
+        return cls(**{**paper, **changes})
 
     @property
     def scale_states(self) -> tuple[str, ...]:

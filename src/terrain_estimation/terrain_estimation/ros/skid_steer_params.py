@@ -108,7 +108,7 @@ _NA = InnovationNoiseConfig()
 _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "filter.type",
-        "an_stukf",
+        _EC.filter,
         "filter: plain UKF (B.8), strong-tracking UKF (B.9), adaptive-noise strong-tracking UKF (B.10, the paper's), "
         "adaptive (strong tracking on whitened innovations and Q/R scales matched to the innovations, B.12; "
         "adaptive_noise.*) or adaptive_sideslip (adaptive plus the B.10 sideslip law, guarded at low speed)",
