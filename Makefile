@@ -117,6 +117,8 @@ sim2real-real-data: setup
 	@if [ -d "$(REAL_DATA)/borealtc" ]; then \
 		$(PY) -m terrain_estimation.sim2real.husky --data $(REAL_DATA)/borealtc --out docs/results/sim2real/husky \
 			--bags out/husky_bags --overwrite; \
+		$(PY) -m terrain_estimation.tools.skid_real_check out/husky_bags --config config/husky.yaml \
+			--out docs/results/skid_steer_fair.md || true; \
 	else echo "sim2real-real-data: $(REAL_DATA)/borealtc not found, Husky runs skipped"; fi
 	$(PY) -m terrain_estimation.tools.sim2real_results
 
