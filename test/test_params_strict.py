@@ -209,3 +209,23 @@ def test_validation_errors_quote_a_huge_value_briefly():
         with pytest.raises(ParameterError) as info:
             spec.validate(value)
         assert len(str(info.value)) < 300, str(info.value)[:1000]
+
+
+def test_an_empty_list_in_a_params_file_reaches_the_node(tmp_path):
+    """rcl gives 'name: []' of a --params-file as NOT_SET (None); the node reads it as the empty list it is
+    (the shipped config/skid_steer.yaml has ground.patch_* = [] for the simulator: make demo broke on it)."""
+    import rclpy
+
+    from terrain_estimation.ros.framework import SimulatorNode
+
+    path = _write(tmp_path / "empty.yaml", "/**", "ground:\n  patch_friction: []\n  patch_x_min: []\n")
+    context = rclpy.Context()
+    rclpy.init(args=["test", "--ros-args", "--params-file", str(path)], context=context)
+    try:
+        node = build_node(SimulatorNode, SIMULATORS["skid_steer"], use_config=False, context=context)
+        try:
+            assert node.values["ground.patch_friction"] == [] and node.values["ground.patch_x_min"] == []
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

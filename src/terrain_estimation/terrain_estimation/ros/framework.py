@@ -387,6 +387,8 @@ def declare_specs(node: Node, specs: Sequence[ParamSpec]) -> dict[str, ParamValu
         else:
             param = node.declare_parameter(spec.name, default, _descriptor(spec))
         value = param.value
+        if value is None and isinstance(default, list) and not default:
+            value = []  # rcl gives an empty list of a parameter file ("name: []") as NOT_SET
         if isinstance(value, tuple) or (hasattr(value, "tolist") and not isinstance(value, str)):
             value = list(value)
         values[spec.name] = spec.validate(value)
