@@ -172,7 +172,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not bags:
         raise InputError(f"{root}: no rosbag2 directory (metadata.yaml) found")
     values = dict(config_values(get_vehicle("skid_steer"), args.config))
-    speed_limit, yaw_limit = float(values["vehicle.max_speed"]), float(values["vehicle.max_yaw_rate"])  # type: ignore[arg-type]
+    speed_limit, yaw_limit = float(values["vehicle.max_speed"]), float(values["vehicle.max_yaw_rate"])
     lines = [
         f"| run | IMU samples | estimates | divergences, limit resets, recoveries | max speed (m/s, limit "
         f"{speed_limit:g}) | max yaw rate (rad/s, limit {yaw_limit:g}) | estimates at rest | max speed at rest "
