@@ -519,7 +519,7 @@ def bench_skid(cfg: BenchConfig) -> dict[str, Any]:
     filters: list[dict[str, Any]] = []
     throughput: list[dict[str, Any]] = []
     for label, name in SKID_FILTERS:
-        est = SkidSteerEstimator(SkidSteerEstimatorConfig(filter=name))  # type: ignore[arg-type]
+        est = SkidSteerEstimator(SkidSteerEstimatorConfig.paper(filter=name))
         timed = _TimedStep(est.filter)
         est.filter = timed  # type: ignore[assignment]
         start = time.perf_counter()
