@@ -28,3 +28,20 @@ def test_a_page_rewritten_whole_keeps_the_other_commands_sections(tmp_path: Path
     assert "new load table" in new and "old load table" not in new
     assert new.count("| a | b |") == 1
     assert keep_sections(new, new) == new, "a section the new text already has is not repeated"
+
+
+def test_only_a_markdown_page_is_written(tmp_path: Path) -> None:
+    """A results --out that names a user's other file (a bag's metadata, a config) is refused, untouched."""
+    import pytest
+
+    from terrain_estimation.cli import InputError
+
+    for name in ("metadata.yaml", "husky.yaml", "run.mcap"):
+        other = tmp_path / name
+        other.write_text("user data\n")
+        with pytest.raises(InputError, match="must be a Markdown file"):
+            write_section(other, "fair-comparison", "## Table\n")
+        assert other.read_text() == "user data\n"
+    with pytest.raises(InputError):
+        write_section(tmp_path, "fair-comparison", "## Table\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["husky.yaml", "metadata.yaml", "run.mcap"]

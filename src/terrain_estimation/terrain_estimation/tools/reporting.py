@@ -246,14 +246,27 @@ def write_section(path: str | os.PathLike[str], name: str, text: str) -> Path:
 
     Two commands can then share one results page (``make bench-load`` writes
     ``robustness.md`` whole and keeps the sections of others: :func:`keep_sections`).
+
+    Only a Markdown page (``.md``) is written: a command's ``--out`` that names a bag's
+    ``metadata.yaml``, a config file or a directory is refused before anything is touched.
+    The page is replaced atomically, so an interrupted write leaves the old page whole.
+
+    Raises:
+        InputError: ``path`` is not a Markdown file.
     """
+    from terrain_estimation.cli import InputError
+
     page = Path(path)
+    if page.suffix.lower() not in (".md", ".markdown") or page.is_dir():
+        raise InputError(f"{page}: a results page must be a Markdown file (.md); nothing written")
     block = f"{_SECTION.format(edge='begin', name=name)}\n{text.rstrip()}\n{_SECTION.format(edge='end', name=name)}\n"
     old = page.read_text() if page.exists() else ""
     pattern = _section_re(name)
     new = pattern.sub(lambda _m: "\n\n" + block, old, count=1) if pattern.search(old) else old.rstrip() + "\n\n" + block
     page.parent.mkdir(parents=True, exist_ok=True)
-    page.write_text(new.lstrip("\n"))
+    partial = page.with_name(f".{page.name}.partial-{os.getpid()}")
+    partial.write_text(new.lstrip("\n"))
+    os.replace(partial, page)
     return page
 
 
