@@ -70,6 +70,7 @@ def _model(ns: int, offset: float, slip_max: float) -> TerrainResponseModel:
     msg.header.stamp = _stamp(ns)
     msg.dp_coefficients = [DP_TRUE[0] + offset, *DP_TRUE[1:]]
     msg.tau_coefficients = [0.0] * 6
+    msg.dp_prediction_rms = 0.25 + offset  # the error the model states (issue 21)
     return msg
 
 
@@ -113,6 +114,7 @@ def test_rover_summary_against_known_errors(tmp_path):
 
     np.testing.assert_allclose(r.model_times, [9.0, 9.5])
     assert r.model_dp_rms == pytest.approx(MODEL_OFFSET)  # the last model, not the first
+    assert r.model_dp_stated == pytest.approx(0.25 + MODEL_OFFSET)
     truth_slip = r.truth_series["slip"].ravel()
     assert r.model_coverage == pytest.approx(np.mean(truth_slip <= slip_max))
     assert 0.0 < r.model_coverage < 1.0
@@ -120,7 +122,7 @@ def test_rover_summary_against_known_errors(tmp_path):
 
     table = demo.ROVER.table([r])
     row = table.splitlines()[2]
-    for cell in ("49/49", "0.0100", "0.200", "0.500", "0.00200", "2 (9.0)", "0.30 (", "19.50 (last 48)", "OK: "):
+    for cell in ("49/49", "0.0100", "0.200", "0.500", "0.00200", "2 (9.0)", "0.30 (0.55;", "19.50 (last 48)", "OK: "):
         assert cell in row, (cell, row)
 
     path = demo.ROVER.plot(r, tmp_path)

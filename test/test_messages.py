@@ -88,6 +88,15 @@ def terrain_samples():
             samples=42,
             dp_rms=0.7,
             tau_rms=0.05,
+            dp_covariance=[0.01 * (k + 1) for k in range(36)],
+            tau_covariance=[1e-4 * (k + 1) for k in range(36)],
+            dp_holdout_rms=0.9,
+            tau_holdout_rms=0.06,
+            dp_estimate_rms=0.4,
+            tau_estimate_rms=0.02,
+            dp_prediction_rms=1.1,
+            tau_prediction_rms=0.08,
+            validation_samples=42,
         )
     )
     return [soil, skid, wheels, model]

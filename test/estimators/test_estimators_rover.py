@@ -329,6 +329,60 @@ def test_fit_recovers_known_coefficients() -> None:
     assert acc.history == (fit,)
 
 
+def _noisy_fits(max_jump: float) -> list:
+    """Refit at every kept period of a run whose DP estimates carry white noise and a slow per-wheel bias."""
+    acc = TerrainResponseAccumulator(TerrainResponseConfig(max_jump=max_jump))
+    rng = np.random.default_rng(21)
+    bias = np.zeros(3)
+    fits = []
+    for k in range(600):
+        t = 0.2 * k
+        if k % 10 == 0:
+            bias = 0.97 * bias + 0.1 * rng.normal(size=3)
+        slip = 0.05 + 0.2 * (0.5 + 0.5 * np.sin(0.05 * t + np.array([0.0, 1.0, 2.0])))
+        load = np.array([62.0, 45.0, 39.0]) + 3.0 * np.sin(0.031 * t + np.array([0.5, 2.0, 4.0]))
+        used = acc.counters.buckets_used
+        acc.add(
+            t,
+            slip=slip,
+            normal_load=load,
+            drawbar_pull=DP_TRUE.evaluate(slip, load) + bias + rng.normal(0.0, 0.3, 3),
+            resistive_torque=TAU_TRUE.evaluate(slip, load) + rng.normal(0.0, 0.01, 3),
+        )
+        if acc.counters.buckets_used > used:
+            fit = acc.fit()
+            if fit is not None:
+                fits.append(fit)
+    return fits
+
+
+def test_published_models_state_their_error_and_do_not_jump_beyond_it() -> None:
+    """Issue 21: covariance and validated error in every model; a model moves at most one stated σ."""
+    fits = _noisy_fits(1.0)
+    assert len(fits) > 20
+    for fit in fits:
+        for cov in (fit.dp_covariance, fit.tau_covariance):
+            assert cov.shape == (6, 6) and np.all(np.isfinite(cov)) and np.allclose(cov, cov.T)
+        assert fit.validation_samples == fit.samples
+        assert fit.dp_prediction_rms >= fit.dp_holdout_rms > 0.0 and fit.tau_prediction_rms >= fit.tau_holdout_rms > 0.0
+        assert fit.dp_std(0.15, 50.0) >= fit.dp_holdout_rms
+    for previous, fit in zip(fits, fits[1:], strict=False):
+        for old, new, cov in (
+            (previous.drawbar_pull, fit.drawbar_pull, previous.dp_covariance),
+            (previous.resistive_torque, fit.resistive_torque, previous.tau_covariance),
+        ):
+            delta = np.array(new.coefficients) - np.array(old.coefficients)
+            assert np.all(np.abs(delta) <= np.sqrt(np.diag(cov)) * (1 + 1e-6))
+    assert any(f.limited for f in fits)
+    # Unbounded, the same data make models that jump by more than the previous stated σ.
+    free = _noisy_fits(math.inf)
+    jumps = [
+        np.max(np.abs(np.array(b.dp_coefficients) - a.dp_coefficients) / np.sqrt(np.diag(a.dp_covariance)))
+        for a, b in zip(free, free[1:], strict=False)
+    ]
+    assert max(jumps) > 1.0 and not any(f.limited for f in free)
+
+
 def test_exact_samples_give_exact_coefficients() -> None:
     """One estimate per bucket: the averages are the samples themselves."""
     acc = TerrainResponseAccumulator(TerrainResponseConfig(min_bucket_estimates=1, wheels=("front",)))

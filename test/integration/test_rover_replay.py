@@ -12,7 +12,8 @@ bag):
 * ``terrain_model`` is published, well formed, and its last DP(W, i) and
   τ_R(W, i) predict the true DP and τ_R of the bag's ground-truth samples
   inside the model's validity region (the traversed region) within the
-  stated RMS;
+  bag's bound, and within the model's own stated error (``*_prediction_rms``,
+  issue 21; :data:`KNOWN_UNDERSTATED` lists where it is not, its bound, and why);
 * the live node's messages are identical to the offline runner's
   (``terrain-estimate``) on the same bag;
 * no input was rejected.
@@ -76,9 +77,29 @@ def _check_model(msg: Any) -> None:
     assert all(math.isfinite(v) for v in values)
     assert msg.slip_min <= msg.slip_max and msg.load_min <= msg.load_max
     assert msg.samples >= 12 and msg.dp_rms >= 0.0 and msg.tau_rms >= 0.0
+    # The model's error (issue 21): the coefficients' covariance and a held-out error, n x n and finite.
+    n = len(msg.dp_coefficients)
+    assert len(msg.dp_covariance) == len(msg.tau_covariance) == n * n
+    assert all(math.isfinite(v) for v in (*msg.dp_covariance, *msg.tau_covariance))
+    assert msg.dp_prediction_rms >= msg.dp_holdout_rms > 0.0 and msg.tau_prediction_rms >= msg.tau_holdout_rms > 0.0
+    assert 0 < msg.validation_samples <= msg.samples
 
 
-def _check_against_truth(expect: dict[str, Any], wheels: list[Any], models: list[Any], truth: dict[int, Any]) -> None:
+#: (bag, load-cell axes) whose last DP model states less than its true error: the true / stated ratio it must
+#: stay under (measured 0.607 / 0.539 = 1.13), and why (issue 21).
+KNOWN_UNDERSTATED = {
+    ("rover_terrain_1", 2): (
+        1.2,
+        "(known: the DP estimates of terrain 1 carry a bias that lasts the 30 s (rear, middle, front -0.84, -0.44, "
+        "-0.41 N) while the estimator states sigma 0.56, 0.21, 0.43 N: the model inherits the bias and only the "
+        "estimator's stated variance can tell of it; issue 21, item 2: DP variances over-confident)",
+    ),
+}
+
+
+def _check_against_truth(
+    bag: str, axes: int, expect: dict[str, Any], wheels: list[Any], models: list[Any], truth: dict[int, Any]
+) -> None:
     """The bag's bounds on every estimate after settling and on the last terrain model (module docstring)."""
     bounds, model_bounds = expect["absolute_tolerance"], expect["terrain_model"]
     worst = {q: np.zeros(3) for q in QUANTITIES}
@@ -118,6 +139,13 @@ def _check_against_truth(expect: dict[str, Any], wheels: list[Any], models: list
     tau_rms = tau.residual_rms(slip[inside], load[inside], torque[inside])
     assert dp_rms < model_bounds["dp_rms"], f"DP model vs truth over the traversed region: RMS {dp_rms:.3f} N"
     assert tau_rms < model_bounds["tau_rms"], f"tau_R model vs truth over the traversed region: RMS {tau_rms:.4f} N m"
+    # The stated error covers the model's true error where the rover drove (issue 21); KNOWN_UNDERSTATED
+    # holds the one bag where it does not, with the ratio it must stay under and why.
+    assert tau_rms <= last.tau_prediction_rms, f"τ_R: true {tau_rms:.4f} N m > stated {last.tau_prediction_rms:.4f}"
+    ratio, why = KNOWN_UNDERSTATED.get((bag, axes), (1.0, ""))
+    assert dp_rms <= ratio * last.dp_prediction_rms, (
+        f"DP: true RMS {dp_rms:.3f} N > {ratio:g} x stated {last.dp_prediction_rms:.3f} N {why}"
+    )
 
 
 def _offline(bag: str, axes: int) -> tuple[Any, list[Any], list[Any], dict[int, Any]]:
@@ -158,7 +186,7 @@ def test_live_node_tracks_the_truth_and_fits_the_terrain(rclpy_context, bag, axe
     assert int(diagnostics["estimator"]) == (2 if axes == 2 else 3)
     assert int(diagnostics["model_fits_published"]) == len(models)
 
-    _check_against_truth(EXPECTATIONS[bag], wheels, models, truth)
+    _check_against_truth(bag, axes, EXPECTATIONS[bag], wheels, models, truth)
 
 
 @pytest.mark.slow
@@ -168,7 +196,7 @@ def test_every_rover_bag_offline(bag, axes):
     """The same bounds on every rover bag, offline (terrain-estimate's runner; slow: about 6 s each)."""
     run, wheels, models, truth = _offline(bag, axes)
     assert wheels
-    _check_against_truth(EXPECTATIONS[bag], wheels, models, truth)
+    _check_against_truth(bag, axes, EXPECTATIONS[bag], wheels, models, truth)
 
 
 # ---------------------------------------------------------------------------

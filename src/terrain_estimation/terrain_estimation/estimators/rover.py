@@ -144,8 +144,14 @@ from terrain_estimation.models.terrain_response import (
     PolynomialModel2D,
     ValidityRegion,
     coefficient_count,
-    fit_polynomial_2d,
     polynomial_exponents,
+)
+from terrain_estimation.models.terrain_response_error import (
+    ValidatedFit,
+    bounded_update,
+    model_variance,
+    region_mean_variance,
+    validated_fit,
 )
 
 __all__ = [
@@ -1189,6 +1195,14 @@ class TerrainResponseConfig:
         weighted: weight each sample by 1/variance of its averaged estimate
             (per quantity); False: equal weights as in the paper.
         history_length: fits kept in :attr:`TerrainResponseAccumulator.history`.
+        validation_blocks: the kept samples are cut into at most this many
+            contiguous blocks of sample periods; each is left out in turn for
+            the held-out prediction error and the jackknife covariance of the
+            coefficients (:mod:`~terrain_estimation.models.terrain_response_error`).
+        max_jump: a new fit moves the published model by at most this
+            Mahalanobis distance in the previous model's stated covariance
+            (1: one stated σ, for every coefficient and every (i, W));
+            ``math.inf``: publish every fit as it is.
     """
 
     sample_period_s: float = 2.0
@@ -1203,8 +1217,14 @@ class TerrainResponseConfig:
     wheels: tuple[str, ...] = WHEELS
     weighted: bool = False
     history_length: int = 50
+    validation_blocks: int = 10
+    max_jump: float = 1.0
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.validation_blocks, int) and self.validation_blocks >= 2):
+            raise ValueError(f"validation_blocks must be an int ≥ 2, got {self.validation_blocks!r}")
+        if not (isinstance(self.max_jump, int | float) and self.max_jump > 0.0 and not math.isnan(self.max_jump)):
+            raise ValueError(f"max_jump must be > 0 (inf: unbounded), got {self.max_jump!r}")
         for name in ("sample_period_s", "wheelbase", "min_curvature_distance"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0.0):
@@ -1242,13 +1262,28 @@ class TerrainResponseConfig:
 class TerrainResponseFit:
     """Fitted DP(W, i) and τ_R(W, i) (the fields of ``terrain_msgs/TerrainResponseModel``).
 
+    The error figures are those of
+    :mod:`~terrain_estimation.models.terrain_response_error`: the stated
+    error of the model's value at (i, W) is
+    σ(i, W) = √(holdout_rms² + estimate_rms² + xᵀ Σ x), x = the terms i^k W^l.
+
     Attributes:
         t: time of the newest sample in the fit (s).
         order: polynomial order.
         drawbar_pull: DP model (N), validity = the samples' (i, W) range.
         resistive_torque: τ_R model (N·m).
         samples: number of averaged samples fitted.
-        dp_rms, tau_rms: residual RMS of the fits (N, N·m).
+        dp_rms, tau_rms: residual RMS of the published models on the fitted samples (N, N·m).
+        dp_covariance, tau_covariance: (n, n) covariance Σ of the published coefficients.
+        dp_holdout_rms, tau_holdout_rms: RMS error on held-out samples (fits without their block).
+        dp_estimate_rms, tau_estimate_rms: √(mean stated variance of the fitted estimates): their shared
+            error, which no hold-out sees (0 when the estimates came without variances).
+        dp_prediction_rms, tau_prediction_rms: √(mean σ(i, W)²) over the validity rectangle.
+        validation_samples: samples predicted by a fit that did not see them.
+        dp_jump, tau_jump: Mahalanobis distance of the new least-squares fit
+            from the previously published model, in that model's covariance
+            (0 for the first model).
+        limited: the step was shortened to ``max_jump`` (for DP or τ_R).
     """
 
     t: float
@@ -1258,6 +1293,28 @@ class TerrainResponseFit:
     samples: int
     dp_rms: float
     tau_rms: float
+    dp_covariance: Array = field(default_factory=lambda: np.zeros((0, 0)))
+    tau_covariance: Array = field(default_factory=lambda: np.zeros((0, 0)))
+    dp_holdout_rms: float = 0.0
+    tau_holdout_rms: float = 0.0
+    dp_estimate_rms: float = 0.0
+    tau_estimate_rms: float = 0.0
+    dp_prediction_rms: float = 0.0
+    tau_prediction_rms: float = 0.0
+    validation_samples: int = 0
+    dp_jump: float = 0.0
+    tau_jump: float = 0.0
+    limited: bool = False
+
+    def dp_std(self, slip: Sequence[float] | Array | float, load: Sequence[float] | Array | float) -> Array:
+        """Stated error σ(i, W) of the DP model (N)."""
+        base = self.dp_holdout_rms**2 + self.dp_estimate_rms**2
+        return np.sqrt(base + model_variance(self.order, self.dp_covariance, slip, load))
+
+    def tau_std(self, slip: Sequence[float] | Array | float, load: Sequence[float] | Array | float) -> Array:
+        """Stated error σ(i, W) of the τ_R model (N·m)."""
+        base = self.tau_holdout_rms**2 + self.tau_estimate_rms**2
+        return np.sqrt(base + model_variance(self.order, self.tau_covariance, slip, load))
 
     @property
     def validity(self) -> ValidityRegion:
@@ -1349,6 +1406,16 @@ class TerrainResponseAccumulator:
     travel (< ``min_curvature_distance``) the curvature is unknown and the
     bucket is not gated on it (it is still gated on ``min_forward_speed``).
 
+    **The model's error** (issue 21; :mod:`~terrain_estimation.models.terrain_response_error`).
+    The fit residual (``dp_rms``) understates the model's error 3–4× on the
+    Kapvik runs (correlated samples, lack of fit, empty corners of the
+    rectangle, biases the samples share). Each fit therefore carries the
+    coefficients' covariance (delete-a-block jackknife over
+    ``validation_blocks`` contiguous blocks of sample periods), the RMS error
+    on held-out samples, and the estimates' own stated error; and a new fit
+    moves the published model by at most ``max_jump`` of the previous
+    model's stated σ (the step not taken is added to the covariance).
+
     Args:
         config: settings.
     """
@@ -1388,10 +1455,17 @@ class TerrainResponseAccumulator:
         return self._last_curvature
 
     def samples(self) -> dict[str, Array]:
-        """Kept samples as arrays: ``t``, ``slip``, ``normal_load``, ``drawbar_pull``, ``resistive_torque``."""
+        """Kept samples as arrays: ``t``, ``slip``, ``normal_load``, ``drawbar_pull``, ``resistive_torque``.
+
+        Also ``<quantity>_variance``: the mean of the averaged estimates' variances (ones when none were given).
+        """
         rows = list(self._samples)
         names = ("t", "slip", "normal_load", "drawbar_pull", "resistive_torque")
-        return {name: np.array([r[k] for r in rows], dtype=float) for k, name in enumerate(names)}
+        out = {name: np.array([r[k] for r in rows], dtype=float) for k, name in enumerate(names)}
+        var = np.array([r[5] for r in rows], dtype=float).reshape(-1, 4)
+        for k, name in enumerate(names[1:]):
+            out[f"{name}_variance"] = var[:, k]
+        return out
 
     def add_estimate(self, estimate: RoverEstimate, curvature: float | None = None) -> None:
         """Add one estimator output; ``curvature`` (m⁻¹) overrides the γ-based estimate for its bucket."""
@@ -1538,7 +1612,8 @@ class TerrainResponseAccumulator:
         mean = [np.mean(np.array(q), axis=0) for q in (b.slip, b.load, b.pull, b.torque)]
         # Variance of a mean of n correlated filter outputs: at most the mean variance
         # (fully correlated); used only as a relative weight.
-        var = np.mean(np.array(b.variances), axis=0) if len(b.variances) == n else np.ones((4, 3))
+        # NaN: no variances came with the estimates (weights then equal, no estimate error stated).
+        var = np.mean(np.array(b.variances), axis=0) if len(b.variances) == n else np.full((4, 3), np.nan)
         for j in self._wheel_idx:
             if len(self._samples) == self._samples.maxlen:
                 self._c["samples_dropped"] += 1
@@ -1547,7 +1622,13 @@ class TerrainResponseAccumulator:
             )
 
     def fit(self) -> TerrainResponseFit | None:
-        """2nd-order (``config.order``) fits of DP(W, i) and τ_R(W, i) to the kept samples.
+        """2nd-order (``config.order``) fits of DP(W, i) and τ_R(W, i) to the kept samples, with their error.
+
+        Each fit comes with its coefficient covariance (block jackknife) and
+        held-out error (:func:`~terrain_estimation.models.terrain_response_error.validated_fit`,
+        blocks of whole sample periods), and moves the previously published
+        model by at most ``config.max_jump`` of its stated σ
+        (:func:`~terrain_estimation.models.terrain_response_error.bounded_update`).
 
         Returns None with fewer than ``config.required_samples`` samples or a
         rank-deficient design (e.g. all samples at one slip); a fit is also
@@ -1557,28 +1638,92 @@ class TerrainResponseAccumulator:
         if len(self._samples) < cfg.required_samples:
             return None
         rows = list(self._samples)
-        t = max(r[0] for r in rows)
+        stamps = np.array([r[0] for r in rows])
         slip = np.array([r[1] for r in rows])
         load = np.array([r[2] for r in rows])
         pull = np.array([r[3] for r in rows])
         torque = np.array([r[4] for r in rows])
         var = np.array([r[5] for r in rows])
-        w_dp = 1.0 / np.maximum(var[:, 2], 1e-12) if cfg.weighted else None
-        w_tau = 1.0 / np.maximum(var[:, 3], 1e-12) if cfg.weighted else None
+        weights = np.nan_to_num(var, nan=1.0)
+        w_dp = 1.0 / np.maximum(weights[:, 2], 1e-12) if cfg.weighted else None
+        w_tau = 1.0 / np.maximum(weights[:, 3], 1e-12) if cfg.weighted else None
+        blocks = cfg.validation_blocks
         try:
-            dp = fit_polynomial_2d(slip, load, pull, cfg.order, w_dp)
-            tau = fit_polynomial_2d(slip, load, torque, cfg.order, w_tau)
+            dp = validated_fit(
+                slip, load, pull, cfg.order, groups=stamps, weights=w_dp, max_blocks=blocks, sample_variances=var[:, 2]
+            )
+            tau = validated_fit(
+                slip,
+                load,
+                torque,
+                cfg.order,
+                groups=stamps,
+                weights=w_tau,
+                max_blocks=blocks,
+                sample_variances=var[:, 3],
+            )
         except ValueError:
             return None
+        previous = self._history[-1] if self._history else None
+        published = []
+        for new, old_model, old_cov, weight, values in (
+            (
+                dp,
+                None if previous is None else previous.drawbar_pull,
+                None if previous is None else previous.dp_covariance,
+                w_dp,
+                pull,
+            ),
+            (
+                tau,
+                None if previous is None else previous.resistive_torque,
+                None if previous is None else previous.tau_covariance,
+                w_tau,
+                torque,
+            ),
+        ):
+            known = old_model is not None and old_cov is not None and old_cov.size > 0
+            step = bounded_update(
+                old_model.coefficients if known and old_model is not None else None,
+                old_cov if known else None,
+                new.model.coefficients,
+                new.covariance,
+                cfg.max_jump,
+            )
+            model = PolynomialModel2D(
+                order=cfg.order, coefficients=tuple(step.coefficients), validity=new.model.validity
+            )
+            published.append((new, step, model, model.residual_rms(slip, load, values, weight)))
+        (dp_fit, dp_step, dp_model, dp_rms), (tau_fit, tau_step, tau_model, tau_rms) = published
         result = TerrainResponseFit(
-            t=t,
+            t=float(stamps.max()),
             order=cfg.order,
-            drawbar_pull=dp.model,
-            resistive_torque=tau.model,
+            drawbar_pull=dp_model,
+            resistive_torque=tau_model,
             samples=len(rows),
-            dp_rms=dp.rms,
-            tau_rms=tau.rms,
+            dp_rms=dp_rms,
+            tau_rms=tau_rms,
+            dp_covariance=dp_step.covariance,
+            tau_covariance=tau_step.covariance,
+            dp_holdout_rms=dp_fit.holdout_rms,
+            tau_holdout_rms=tau_fit.holdout_rms,
+            dp_estimate_rms=dp_fit.estimate_rms,
+            tau_estimate_rms=tau_fit.estimate_rms,
+            dp_prediction_rms=_prediction_rms(dp_fit, dp_step.covariance),
+            tau_prediction_rms=_prediction_rms(tau_fit, tau_step.covariance),
+            validation_samples=min(dp_fit.validation_samples, tau_fit.validation_samples),
+            dp_jump=dp_step.distance,
+            tau_jump=tau_step.distance,
+            limited=dp_step.limited or tau_step.limited,
         )
         self._c["fits"] += 1
         self._history.append(result)
         return result
+
+
+def _prediction_rms(fit: ValidatedFit, covariance: Array) -> float:
+    """√(holdout² + estimate² + mean xᵀΣx) over the fit's validity rectangle, with the published covariance."""
+    region = fit.model.validity
+    assert region is not None
+    base = fit.holdout_rms**2 + fit.estimate_rms**2
+    return math.sqrt(base + region_mean_variance(fit.model.order, covariance, region))

@@ -26,7 +26,12 @@ Topics (CONTRACT.md, "Rocker-bogie rover"), relative to the vehicle namespace:
   :func:`~terrain_estimation.models.terrain_response.polynomial_exponents`
   (for total degree d = 0..order, for k = d..0: the term i^k W^(d−k); order 2:
   ``[1, i, W, i², i·W, W²]``), validity region = the fitted samples' (i, W)
-  range.
+  range. Its error: ``dp_covariance``/``tau_covariance`` (n × n, row-major) of
+  the coefficients, ``*_holdout_rms`` on samples the fit did not see,
+  ``*_estimate_rms`` the estimates' own stated error, and
+  ``*_prediction_rms`` over the validity region
+  (:mod:`~terrain_estimation.models.terrain_response_error`); a new model
+  moves the last by at most ``terrain_model.max_jump`` of its stated σ.
 
 **When terrain_model is published.** Every estimate (after
 ``terrain_model.settle_time`` from a filter (re)initialisation) goes into a
@@ -504,6 +509,22 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
         1,
         10**6,
     ),
+    ParamSpec(
+        "terrain_model.validation_blocks",
+        _TC.validation_blocks,
+        "[-] contiguous blocks of sample periods, each left out in turn: held-out error and jackknife "
+        "covariance of the coefficients",
+        2,
+        1000,
+    ),
+    ParamSpec(
+        "terrain_model.max_jump",
+        _TC.max_jump,
+        "[-] a new fit moves the published model by at most this many of its stated sigma (Mahalanobis "
+        "distance in the previous covariance); 0: no bound",
+        0.0,
+        1e6,
+    ),
     ParamSpec("joints.bogie", "bogie", "joint_states name of the bogie joint (q1)"),
     ParamSpec("joints.rear_wheel", "rear_wheel", "joint_states name of the rear wheel ([RB] wheel 1, q2)"),
     ParamSpec("joints.middle_wheel", "middle_wheel", "joint_states name of the middle wheel ([RB] wheel 2, q3)"),
@@ -663,6 +684,7 @@ def terrain_response_config(values: Mapping[str, ParamValue]) -> TerrainResponse
         ValueError: unknown wheel names, min_samples below the number of coefficients, ….
     """
     min_samples = int(values["terrain_model.min_samples"])
+    max_jump = _f(values, "terrain_model.max_jump")
     return TerrainResponseConfig(
         sample_period_s=_f(values, "terrain_model.sample_period"),
         order=int(values["terrain_model.order"]),
@@ -676,6 +698,8 @@ def terrain_response_config(values: Mapping[str, ParamValue]) -> TerrainResponse
         wheels=tuple(str(w) for w in values["terrain_model.wheels"]),
         weighted=bool(values["terrain_model.weighted"]),
         history_length=int(values["terrain_model.history_length"]),
+        validation_blocks=int(values["terrain_model.validation_blocks"]),
+        max_jump=max_jump if max_jump > 0.0 else math.inf,
     )
 
 
@@ -717,6 +741,15 @@ def fit_to_msg(fit: TerrainResponseFit, frame_id: str) -> TerrainResponseModel:
         samples=fit.samples,
         dp_rms=fit.dp_rms,
         tau_rms=fit.tau_rms,
+        dp_covariance=[float(c) for c in fit.dp_covariance.ravel()],
+        tau_covariance=[float(c) for c in fit.tau_covariance.ravel()],
+        dp_holdout_rms=fit.dp_holdout_rms,
+        tau_holdout_rms=fit.tau_holdout_rms,
+        dp_estimate_rms=fit.dp_estimate_rms,
+        tau_estimate_rms=fit.tau_estimate_rms,
+        dp_prediction_rms=fit.dp_prediction_rms,
+        tau_prediction_rms=fit.tau_prediction_rms,
+        validation_samples=fit.validation_samples,
     )
     msg.header.stamp = sec_to_stamp(fit.t)
     msg.header.frame_id = frame_id
@@ -984,6 +1017,14 @@ class RoverAdapter:
             model_samples_dropped=m.samples_dropped,
             model_last_curvature=curvature if curvature is not None else "unknown",
         )
+        history = self.accumulator.history
+        if history:  # the last model's stated error and how far its fit wanted to move (issue 21)
+            h.values.update(
+                model_dp_prediction_rms=history[-1].dp_prediction_rms,
+                model_tau_prediction_rms=history[-1].tau_prediction_rms,
+                model_dp_jump=history[-1].dp_jump,
+                model_step_bounded=history[-1].limited,
+            )
 
 
 def make_adapter(values: Mapping[str, ParamValue], namespace: str) -> RoverAdapter:
