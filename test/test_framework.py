@@ -320,3 +320,29 @@ def test_bytes_that_do_not_decode_are_rejected_and_the_node_goes_on(
         executor.shutdown()
         source.destroy_node()
         node.destroy_node()
+
+
+def _nis_message(rclpy_context, values) -> str:
+    node = EstimatorNode("nis_estimator", SPECS, RunningMeanAdapter, namespace="/nis", context=rclpy_context)
+    try:
+        node.adapter.health.nis.extend(values)
+        return node.diagnostic_status().message
+    finally:
+        node.destroy_node()
+
+
+def test_nis_band_counts_the_effective_samples_of_coloured_innovations(rclpy_context):
+    """Innovations coloured by model error (AR(1), rho 0.95) with a mean NIS 30 % low: healthy, not WARN;
+    the same mean from white innovations is a real inconsistency (WARN); a fault (5x) WARNs either way."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    z = np.zeros(200)
+    for k in range(1, 200):
+        z[k] = 0.95 * z[k - 1] + np.sqrt(1 - 0.95**2) * rng.standard_normal()
+    coloured = 0.7 * z**2 / np.mean(z**2)
+    white = rng.standard_normal(200) ** 2
+    white = 0.7 * white / white.mean()
+    assert "innovations inconsistent" not in _nis_message(rclpy_context, coloured)
+    assert "innovations inconsistent" in _nis_message(rclpy_context, white)
+    assert "innovations inconsistent" in _nis_message(rclpy_context, 5.0 * coloured)
