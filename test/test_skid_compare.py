@@ -66,3 +66,16 @@ def test_command_line_writes_its_section(tmp_path, capsys) -> None:
     assert "nan" not in text.split("| straight_acceleration |")[1].split("\n")[0]
     assert main(["--seeds", "0"]) == 2
     assert "--seeds and --jobs must be >= 1" in capsys.readouterr().err
+
+
+def test_consider_section_holds_the_estimates_and_ranks_the_rms() -> None:
+    """The sensitivity section: the same estimates in every row, the variance growing with the rms."""
+    from terrain_estimation.tools.skid_compare import compare, consider_filters, consider_markdown, plan
+
+    rows = compare(plan(["straight_acceleration"], [1000], consider_filters()))
+    by = {r.filter: r for r in rows}
+    assert list(by) == ["not considered", "rms 0.01", "rms 0.02", "rms 0.03"]
+    assert len({(r.rms_vx, r.rms_vy, r.mean_abs_beta) for r in rows}) == 1
+    vx = [by[f].normalised_vx for f in by]
+    assert vx == sorted(vx, reverse=True) and vx[0] > 5.0 * vx[2]
+    assert "| straight_acceleration | rms 0.02 | 1 |" in consider_markdown(rows)

@@ -125,6 +125,7 @@ from typing import Any
 import numpy as np
 
 from terrain_estimation.estimators.skid_steer_config import MODELS, SkidSteerEstimatorConfig
+from terrain_estimation.estimators.skid_steer_consider import ConsiderCovariance
 from terrain_estimation.estimators.skid_steer_odometry import DeadReckoning
 from terrain_estimation.estimators.skid_steer_wheels import WheelSpeedBuffer
 from terrain_estimation.estimators.skid_steer_zupt import StationaryDetector, zero_velocity_update
@@ -274,6 +275,7 @@ class SkidSteerEstimator:
         if self._n_scales:
             p0[3:, 3:] = self.model.initial_scale_covariance()
         self._p0 = p0
+        self._consider = ConsiderCovariance.for_estimator(cfg.consider, cfg, self.model)
         self._friction = cfg.friction
         self._kinematic = cfg.model.startswith("kinematic")
         # Per-step constants of _estimate.
@@ -497,11 +499,11 @@ class SkidSteerEstimator:
         return KinematicInput(u, a_raw[0], a_raw[1], yaw_acceleration) if self._kinematic else u
 
     def _full_state(self, motion: Array, scales: Array | None = None) -> Array:
-        """``[vx, vy, r]`` with the scale states appended (given, else the current estimate's, else 0)."""
+        """``[vx, vy, r]`` with the added states appended (given, else the current estimate's, else their prior)."""
         if not self._n_scales:
             return motion
         if scales is None:
-            scales = np.zeros(self._n_scales)
+            scales = self.model.initial_scale_state()
             if self._state is not None:
                 current = np.asarray(self._state.x, dtype=float)[3:]
                 if np.isfinite(current).all():
@@ -516,6 +518,8 @@ class SkidSteerEstimator:
             x0 = self._odometry_state(wl, wr, float(z[2]))
         self._state = self.filter.initial_state(self._full_state(x0), self._p0)
         self._memory = None
+        if self._consider is not None:
+            self._consider.reset()
         if self._monitor is not None:
             self._monitor.start(self._state)
         self._c["restarts" if restart else "initialisations"] += 1
@@ -582,9 +586,16 @@ class SkidSteerEstimator:
             return self._estimate(t, wl, wr, dt, fading=1.0, scale=1.0, a_bar=0.0, nis=0.0, accepted=False, init=True)
         self._state = post
         self._memory = res.memory
+        if self._consider is not None:
+            try:
+                self._consider.step(prev.x, post.x, res, post.P, u, dt)
+            except ValueError:
+                self._consider.reset()
         if self._stationary and self.config.zupt.enabled:
             self._state = zero_velocity_update(post, self._detector.mean_yaw_rate(), self.config.zupt)
             self._c["zero_velocity_updates"] += 1
+            if self._consider is not None:
+                self._consider.reset()
         if res.accepted:
             self._c["updates_accepted"] += 1
         else:
@@ -661,6 +672,10 @@ class SkidSteerEstimator:
         cfg = self.config
         x = np.asarray(self._state.x, dtype=float)
         P = np.asarray(self._state.P, dtype=float)
+        if self._consider is not None:
+            if init:  # a (re)start: the new estimate does not yet depend on the parameters
+                self._consider.reset()
+            P = P + self._consider.covariance()
         if self._n_scales:
             P3 = np.ascontiguousarray(P[:3, :3])
             vx, vy, r = x[:3].tolist()

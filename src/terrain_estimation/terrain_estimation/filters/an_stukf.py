@@ -132,6 +132,12 @@ class AnStukfResult:
         measurement_noise_scale: ``R_k,ii / R0_ii`` per channel ``(p,)`` of
             the step (None for the paper's variants, whose ``R`` scale is
             ``1/(1 + K_r ᾱ)`` for every channel).
+        prior_cov: the predicted covariance ``P̄`` the update started from
+            ``(n, n)`` (after any fading).
+        cross_cov: ``P_xz`` of the update ``(n, p)``: with ``innovation_cov``
+            the gain ``K = P_xz P_zz⁻¹``, and ``P⁺ P̄⁻¹ = I − K H̃`` with the
+            filter's statistical linearisation ``H̃`` (a consider analysis
+            needs both, :mod:`terrain_estimation.estimators.skid_steer_consider`).
     """
 
     fading_factor: float
@@ -143,6 +149,8 @@ class AnStukfResult:
     accepted: bool
     memory: Array | None
     measurement_noise_scale: Array | None = None
+    prior_cov: Array | None = None
+    cross_cov: Array | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -276,17 +284,23 @@ class AdaptiveStrongTrackingUKF:
         Lq0 = None if self.q0_sqrt is None else check_factor("q0_sqrt", self.q0_sqrt, n)
         Rs0 = None if self.r0_sqrt is None else check_factor("r0_sqrt", self.r0_sqrt, p)
         if self.variant == "ukf":
+            # UnscentedKalmanFilter.predict + update, with the update's moments kept for the result.
             prior = self.ukf.predict(state, model, u, dt, process_noise_sqrt=Lq0)
-            post, info = self.ukf.update(prior, zv, model, u, measurement_noise_sqrt=Rs0)
+            mm = self.ukf.measurement_moments(prior, model, u, measurement_noise_sqrt=Rs0)
+            nu = zv - mm.z_hat
+            gained, nis = self.ukf._gain_update(prior.x, prior.P, nu, mm.P_zz, mm.P_xz)
+            post = prior if gained is None else GaussianState(x=gained[0], P=gained[1])
             return post, AnStukfResult(
                 fading_factor=1.0,
                 noise_scale=1.0,
                 mean_abs_sideslip=0.0,
-                nis=float(info.nis),
-                innovation=info.innovation,
-                innovation_cov=info.innovation_cov,
-                accepted=info.accepted,
+                nis=float(nis),
+                innovation=nu,
+                innovation_cov=mm.P_zz,
+                accepted=gained is not None,
                 memory=memory,
+                prior_cov=prior.P,
+                cross_cov=mm.P_xz,
             )
 
         if Lq0 is None:
@@ -330,6 +344,8 @@ class AdaptiveStrongTrackingUKF:
             innovation_cov=P_zz,
             accepted=updated is not None,
             memory=V,
+            prior_cov=P_prior,
+            cross_cov=P_xz,
         )
 
     def _sideslip(self, model: StateSpaceModel, x_bar: Array, u: Any) -> Array:
@@ -407,4 +423,6 @@ class AdaptiveStrongTrackingUKF:
             accepted=updated is not None,
             memory=AdaptiveMemory(V=V, r_scale=s_r, q_scale=s_q).pack(),
             measurement_noise_scale=r_scale,
+            prior_cov=P_prior,
+            cross_cov=P_xz,
         )

@@ -57,7 +57,7 @@ import numpy as np
 from terrain_estimation.filters.base import Array
 from terrain_estimation.models.skid_steer import SkidSteerParams
 from terrain_estimation.models.skid_steer_observer import DEFAULT_Q0_DIAG, DEFAULT_R0_DIAG, SkidSteerInput
-from terrain_estimation.models.skid_steer_scales import TireScaleConfig, _ScaledModelBase, scaled_force_sums
+from terrain_estimation.models.skid_steer_scales import TireScaleConfig, _ScaledModelBase
 
 __all__ = [
     "KinematicInput",
@@ -173,7 +173,7 @@ class SkidSteerKinematicModel(_ScaledModelBase):
         xs = np.asarray(x, dtype=float)
         rows = self._rows_of(xs)
         terms = self.base._terms(u.wheels)
-        sums = scaled_force_sums(self.base, rows[:3], terms, self._multipliers(rows))
+        sums = self._force_sums(rows, terms)
         p = self.params
         dim = self.measurement_dim
         out = np.empty((rows.shape[1], dim))

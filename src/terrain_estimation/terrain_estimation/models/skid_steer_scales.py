@@ -56,7 +56,9 @@ from terrain_estimation.models.skid_steer_observer import (
 )
 
 __all__ = [
+    "RESISTANCE_NAME",
     "SCALE_NAMES",
+    "STATE_NAMES",
     "TireScaleConfig",
     "SkidSteerTireScaleModel",
     "scaled_force_sums",
@@ -64,6 +66,10 @@ __all__ = [
 
 #: The tire parameters that may carry a scale state, in state order.
 SCALE_NAMES: tuple[str, ...] = ("friction", "cornering_stiffness", "longitudinal_stiffness")
+#: The motion-resistance coefficient state (additive, after the scales; module docstring).
+RESISTANCE_NAME = "motion_resistance"
+#: Every name :attr:`TireScaleConfig.states` accepts, in state order.
+STATE_NAMES: tuple[str, ...] = (*SCALE_NAMES, RESISTANCE_NAME)
 
 
 @dataclass(frozen=True)
@@ -71,8 +77,10 @@ class TireScaleConfig:
     """Which tire parameters carry a scale state, and how the scales move.
 
     Attributes:
-        states: names from :data:`SCALE_NAMES` (any subset, in any order;
-            stored in :data:`SCALE_NAMES` order). Empty: no scale state.
+        states: names from :data:`STATE_NAMES` (any subset, in any order;
+            stored in :data:`STATE_NAMES` order). Empty: no scale state.
+            ``"motion_resistance"`` adds the resistance coefficient state
+            (module docstring), the others a log-scale each.
         walk_std: random-walk standard deviation of each ``ln s`` (1/√s):
             0.02 lets a scale drift by ≈ 6 % in 10 s.
         initial_std: standard deviation of ``ln s`` at (re)initialisation
@@ -80,6 +88,17 @@ class TireScaleConfig:
         min_scale, max_scale: bounds of every scale (dimensionless, 0 < min < 1 < max).
         reversion_time_s: time constant of the reversion of each ``ln s`` to 0
             (s); 0: none (a pure random walk).
+        resistance_nominal: prior mean c_0 of the motion-resistance
+            coefficient (force per unit normal load; 0.01–0.03 for tires on
+            firm ground, 0.05–0.15 on grass, sand, mud).
+        resistance_std: prior and stationary standard deviation of the
+            coefficient around ``resistance_nominal``.
+        resistance_time_s: correlation time of the coefficient (s): it is a
+            first-order Gauss–Markov process reverting to c_0, so where it is
+            not observable (a steady run) its variance stays at the prior's.
+        resistance_max: upper bound of the coefficient (its lower bound is 0).
+        resistance_speed: smoothing speed v_0 of the resistance's direction,
+            ``tanh(v_wheel/v_0)`` (m/s).
     """
 
     states: tuple[str, ...] = ("cornering_stiffness",)
@@ -88,14 +107,19 @@ class TireScaleConfig:
     min_scale: float = 0.25
     max_scale: float = 4.0
     reversion_time_s: float = 0.0
+    resistance_nominal: float = 0.02
+    resistance_std: float = 0.02
+    resistance_time_s: float = 30.0
+    resistance_max: float = 0.5
+    resistance_speed: float = 0.1
 
     def __post_init__(self) -> None:
         names = tuple(str(s) for s in self.states)
-        unknown = [s for s in names if s not in SCALE_NAMES]
+        unknown = [s for s in names if s not in STATE_NAMES]
         if unknown or len(set(names)) != len(names):
-            raise ValueError(f"TireScaleConfig.states must be distinct names of {SCALE_NAMES}, got {self.states!r}")
-        object.__setattr__(self, "states", tuple(s for s in SCALE_NAMES if s in names))
-        for name in ("walk_std", "initial_std", "reversion_time_s"):
+            raise ValueError(f"TireScaleConfig.states must be distinct names of {STATE_NAMES}, got {self.states!r}")
+        object.__setattr__(self, "states", tuple(s for s in STATE_NAMES if s in names))
+        for name in ("walk_std", "initial_std", "reversion_time_s", "resistance_nominal", "resistance_std"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"TireScaleConfig.{name} must be finite and >= 0, got {value}")
@@ -105,10 +129,35 @@ class TireScaleConfig:
                 f"TireScaleConfig.min_scale and max_scale must satisfy 0 < min < 1 < max, got {lo} and {hi}"
             )
 
+        for name in ("resistance_time_s", "resistance_speed"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"TireScaleConfig.{name} must be finite and > 0, got {value}")
+        if not (math.isfinite(self.resistance_max) and self.resistance_max > self.resistance_nominal):
+            raise ValueError(
+                f"TireScaleConfig.resistance_max must be finite and > resistance_nominal "
+                f"({self.resistance_nominal}), got {self.resistance_max}"
+            )
+
+    @property
+    def extra(self) -> tuple[str, ...]:
+        """The added states in state order (:data:`STATE_NAMES`): :attr:`states`."""
+        return self.states
+
     @property
     def count(self) -> int:
-        """Number of scale states k."""
-        return len(self.states)
+        """Number of added states (log-scales and the resistance coefficient)."""
+        return len(self.extra)
+
+    @property
+    def scale_count(self) -> int:
+        """Number of log-scale states k (the tire parameters of :data:`SCALE_NAMES`)."""
+        return self.count - int(self.resistance)
+
+    @property
+    def resistance(self) -> bool:
+        """Whether the motion-resistance coefficient is a state."""
+        return RESISTANCE_NAME in self.states
 
 
 def scaled_force_sums(base: SkidSteerObserverModel, c: Array, terms: _StepTerms, multipliers: Array | None) -> Array:
@@ -146,6 +195,31 @@ def scaled_force_sums(base: SkidSteerObserverModel, c: Array, terms: _StepTerms,
     return np.add.reduce(per_wheel, axis=-1)
 
 
+def resistance_force_sums(
+    base: SkidSteerObserverModel, c: Array, terms: _StepTerms, coefficient: Array, speed: float
+) -> Array:
+    """``[ΣF_x, 0, M_z]`` ``(3, m)`` of the motion resistance (rolling, bulldozing) at each point.
+
+    Each wheel is resisted along the body x axis by ``c F_z tanh(v_x,w/v_0)``,
+    ``v_x,w = v_x − r y_w`` its contact point's forward speed: in a turn the
+    faster side is resisted more, which gives the yaw moment that opposes the
+    turn.
+
+    Args:
+        base: the nominal observer model (geometry, loads).
+        c: states as component rows ``(3, m)``.
+        terms: the step's per-input terms (loads).
+        coefficient: the resistance coefficient of each point ``(m,)`` (≥ 0).
+        speed: smoothing speed v_0 (m/s).
+    """
+    wheel_vx = c[0, :, None] - c[2, :, None] * base._contact_arm[0]  # (m, 2N)
+    fx = -(coefficient[:, None] * terms.normal_load) * np.tanh(wheel_vx / speed)
+    out = np.zeros((3, c.shape[1]))
+    out[0] = fx.sum(axis=-1)
+    out[2] = (fx * base._moment_arm[0]).sum(axis=-1)  # −y_w F_x
+    return out
+
+
 class _ScaledModelBase:
     """What the scale-augmented models share: the state layout, the scales, ``h`` and the noise."""
 
@@ -174,7 +248,8 @@ class _ScaledModelBase:
         )
         self.params = self.base.params
         self.scales = scales
-        self._rows = np.array([SCALE_NAMES.index(s) for s in scales.states], dtype=int)
+        self._k = scales.scale_count
+        self._rows = np.array([SCALE_NAMES.index(s) for s in scales.states[: self._k]], dtype=int)
         self._log_bounds = (math.log(scales.min_scale), math.log(scales.max_scale))
         self.q0_diag = self.base.q0_diag
         self.r0_diag = self.base.r0_diag
@@ -198,21 +273,42 @@ class _ScaledModelBase:
 
     def _multipliers(self, rows: Array) -> Array | None:
         """``(3, m)`` scales of μ, C_α, C_x of the points (None without scale states)."""
-        if not self.scales.count:
+        if not self._k:
             return None
         lo, hi = self._log_bounds
         mult = np.ones((3, rows.shape[1]))
-        mult[self._rows] = np.exp(np.clip(rows[3:], lo, hi))
+        mult[self._rows] = np.exp(np.clip(rows[3 : 3 + self._k], lo, hi))
         return mult
 
+    def _force_sums(self, rows: Array, terms: _StepTerms) -> Array:
+        """``[ΣF_x, ΣF_y, M_z]`` ``(3, m)``: the tires with the points' scales, plus the motion resistance."""
+        sums = scaled_force_sums(self.base, rows[:3], terms, self._multipliers(rows))
+        if self.scales.resistance:
+            coefficient = np.clip(rows[-1], 0.0, self.scales.resistance_max)
+            sums += resistance_force_sums(self.base, rows[:3], terms, coefficient, self.scales.resistance_speed)
+        return sums
+
     def scale_values(self, x: Array) -> tuple[float, ...]:
-        """The scales ``s = exp(ln s)`` of one state ``(n,)``, bounded, in :attr:`scales` ``.states`` order."""
+        """The added states of one state ``(n,)`` in :attr:`scales` ``.states`` order: the scales
+        ``s = exp(ln s)`` (bounded), then the resistance coefficient (bounded)."""
         lo, hi = self._log_bounds
-        return tuple(math.exp(min(max(float(v), lo), hi)) for v in np.asarray(x, dtype=float)[3:])
+        extra = np.asarray(x, dtype=float)[3:]
+        values = [math.exp(min(max(float(v), lo), hi)) for v in extra[: self._k]]
+        if self.scales.resistance:
+            values.append(min(max(float(extra[-1]), 0.0), self.scales.resistance_max))
+        return tuple(values)
+
+    def initial_scale_state(self) -> Array:
+        """The added states at (re)initialisation ``(k,)``: ``ln s = 0``, the coefficient at its prior mean."""
+        out = np.zeros(self.scales.count)
+        if self.scales.resistance:
+            out[-1] = self.scales.resistance_nominal
+        return out
 
     def initial_scale_covariance(self) -> Array:
-        """``diag(initial_std²)`` of the scale states ``(k, k)``."""
-        return np.eye(self.scales.count) * self.scales.initial_std**2
+        """``diag(initial_std², …, resistance_std²)`` of the added states ``(k, k)``."""
+        sc = self.scales
+        return np.diag([sc.initial_std**2] * self._k + [sc.resistance_std**2] * int(sc.resistance))
 
     # -- StateSpaceModel ------------------------------------------------------------
     def h(self, x: Array, u: Any) -> Array:
@@ -220,7 +316,7 @@ class _ScaledModelBase:
         xs = np.asarray(x, dtype=float)
         rows = self._rows_of(xs)
         terms = self.base._terms(self._wheel_input(u))
-        sums = scaled_force_sums(self.base, rows[:3], terms, self._multipliers(rows))
+        sums = self._force_sums(rows, terms)
         out = np.empty((rows.shape[1], 3))
         out[:, 0] = sums[0] / self.params.mass
         out[:, 1] = sums[1] / self.params.mass
@@ -232,7 +328,12 @@ class _ScaledModelBase:
         return self.base.measurement_noise_sqrt()
 
     def _scale_noise(self, dt: float) -> Array:
-        return np.full(self.scales.count, self.scales.walk_std * math.sqrt(dt))
+        """Per-step noise std of the added states: the scales' walk, the coefficient's Gauss–Markov drive."""
+        sc = self.scales
+        noise = [sc.walk_std * math.sqrt(dt)] * self._k
+        if sc.resistance:
+            noise.append(sc.resistance_std * math.sqrt(-math.expm1(-2.0 * dt / sc.resistance_time_s)))
+        return np.array(noise)
 
     def tire_sideslip(self, x: Array, u: Any = None) -> Array:
         """The 2N tire sideslip angles α at the motion part of the state (rad), for B.10."""
@@ -242,7 +343,7 @@ class _ScaledModelBase:
         """``(ΣF_x, ΣF_y, M_z)`` at the state(s) ``(..., n)`` with their scales (N, N, N·m)."""
         xs = np.asarray(x, dtype=float)
         rows = self._rows_of(xs)
-        sums = scaled_force_sums(self.base, rows[:3], self.base._terms(self._wheel_input(u)), self._multipliers(rows))
+        sums = self._force_sums(rows, self.base._terms(self._wheel_input(u)))
         shape = xs.shape[:-1]
         return sums[0].reshape(shape)[()], sums[1].reshape(shape)[()], sums[2].reshape(shape)[()]
 
@@ -250,13 +351,20 @@ class _ScaledModelBase:
         return u
 
     def _clip_scales(self, out: Array, dt: float) -> None:
-        """Revert the log-scales ``out[3:]`` (rows) towards 0 over ``dt`` (if set) and bound them, in place."""
-        if self.scales.count:
+        """Revert the added states (rows ``out[3:]``) towards their prior over ``dt`` and bound them, in place:
+        the log-scales to 0 (if ``reversion_time_s`` is set), the coefficient to ``resistance_nominal``."""
+        k = self._k
+        if k:
             tau = self.scales.reversion_time_s
             if tau > 0.0:
-                out[3:] *= math.exp(-dt / tau)
+                out[3 : 3 + k] *= math.exp(-dt / tau)
             lo, hi = self._log_bounds
-            np.clip(out[3:], lo, hi, out=out[3:])
+            np.clip(out[3 : 3 + k], lo, hi, out=out[3 : 3 + k])
+        if self.scales.resistance:
+            sc = self.scales
+            decay = math.exp(-dt / sc.resistance_time_s)
+            out[-1] = sc.resistance_nominal + (out[-1] - sc.resistance_nominal) * decay
+            np.clip(out[-1], 0.0, sc.resistance_max, out=out[-1])
 
 
 class SkidSteerTireScaleModel(_ScaledModelBase):
@@ -318,8 +426,13 @@ class SkidSteerTireScaleModel(_ScaledModelBase):
         delta = dt / n_sub
         p = self.params
         c = rows[:3]
+        sc = self.scales
+        coefficient = np.clip(rows[-1], 0.0, sc.resistance_max) if sc.resistance else None
         for _ in range(n_sub):
-            rate = scaled_force_sums(self.base, c, terms, mult) / self.base._rate_divisor
+            rate = scaled_force_sums(self.base, c, terms, mult)
+            if coefficient is not None:
+                rate += resistance_force_sums(self.base, c, terms, coefficient, sc.resistance_speed)
+            rate /= self.base._rate_divisor
             rate[0] += c[1] * c[2]
             rate[1] -= c[0] * c[2]
             rate[2] /= p.yaw_inertia

@@ -16,13 +16,14 @@ from pathlib import Path
 from typing import Any
 
 from terrain_estimation.estimators.skid_steer import MODELS, SkidSteerEstimatorConfig
+from terrain_estimation.estimators.skid_steer_consider import CONSIDER_NAMES, ConsiderConfig
 from terrain_estimation.estimators.skid_steer_wheels import INTERPOLATIONS
 from terrain_estimation.estimators.skid_steer_zupt import ZuptConfig
 from terrain_estimation.filters.adaptive import StrongTrackingConfig
 from terrain_estimation.filters.an_stukf import VARIANTS
 from terrain_estimation.filters.noise_adaptation import InnovationNoiseConfig
 from terrain_estimation.models.skid_steer import SkidSteerParams
-from terrain_estimation.models.skid_steer_scales import SCALE_NAMES, TireScaleConfig
+from terrain_estimation.models.skid_steer_scales import RESISTANCE_NAME, SCALE_NAMES, TireScaleConfig
 from terrain_estimation.params import ParamSpec, ParamValue, default_config_path, load_parameter_file
 from terrain_estimation.ros.framework import divergence_config, divergence_specs, input_specs
 
@@ -39,6 +40,7 @@ __all__ = [
 _D = SkidSteerParams()
 _EC = SkidSteerEstimatorConfig()
 _TS = TireScaleConfig()
+_CC = SkidSteerEstimatorConfig().consider
 _ZU = ZuptConfig()
 
 
@@ -200,6 +202,75 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
         "[-] standard deviation of each ln(scale) at (re)initialisation (0.3: nominal within ~35 %)",
         0.0,
         10.0,
+    ),
+    ParamSpec(
+        f"tire_scales.{RESISTANCE_NAME}",
+        RESISTANCE_NAME in _TS.states,
+        "filter.model brush_scales / kinematic_scales: estimate the motion-resistance coefficient (rolling, "
+        "bulldozing; force per unit normal load) as a Gauss-Markov state around tire_scales.resistance_nominal. "
+        "It is not observable in a steady run (it trades with the longitudinal slip): prefer "
+        "consider.motion_resistance, which widens the variances instead",
+    ),
+    ParamSpec(
+        "tire_scales.resistance_nominal",
+        _TS.resistance_nominal,
+        "[-] prior mean of the estimated motion-resistance coefficient (0.01-0.03 firm ground, 0.05-0.15 grass, "
+        "sand, mud)",
+        0.0,
+        1.0,
+    ),
+    ParamSpec(
+        "tire_scales.resistance_std",
+        _TS.resistance_std,
+        "[-] prior and stationary standard deviation of the estimated motion-resistance coefficient",
+        0.0,
+        1.0,
+    ),
+    ParamSpec(
+        "tire_scales.resistance_time",
+        _TS.resistance_time_s,
+        "[s] correlation time of the estimated motion-resistance coefficient",
+        1e-3,
+        1e6,
+    ),
+    ParamSpec(
+        "tire_scales.resistance_max",
+        _TS.resistance_max,
+        "[-] upper bound of the estimated motion-resistance coefficient (> resistance_nominal)",
+        1e-3,
+        1.0,
+    ),
+    ParamSpec(
+        "tire_scales.resistance_speed",
+        _TS.resistance_speed,
+        "[m/s] smoothing speed v0 of the resistance's direction, tanh(v_wheel/v0)",
+        1e-3,
+        10.0,
+    ),
+    *(
+        ParamSpec(
+            f"consider.{name}",
+            name in _CC.parameters,
+            f"include in the published variances what an unestimated {name.replace('_', ' ')} does to the "
+            "estimate (a consider parameter, Schmidt: the estimate is unchanged, its variance widened by the "
+            "sensitivity to the parameter's deviation; skipped when tire_scales estimates it)",
+        )
+        for name in CONSIDER_NAMES
+    ),
+    ParamSpec(
+        "consider.scale_std",
+        _CC.scale_std,
+        "[-] rms deviation of ln(scale) of each considered tire parameter (0.3: nominal within ~35 %)",
+        0.0,
+        10.0,
+    ),
+    ParamSpec(
+        "consider.resistance_rms",
+        _CC.resistance_rms,
+        "[-] rms motion-resistance coefficient the observer's model leaves out (0.02: tires on firm ground; "
+        "0.05-0.1 on soft soil)",
+        0.0,
+        1.0,
     ),
     ParamSpec("tire_scales.min", _TS.min_scale, "[-] lower bound of every scale (< 1)", 1e-3, 0.999),
     ParamSpec("tire_scales.max", _TS.max_scale, "[-] upper bound of every scale (> 1)", 1.001, 1e3),
@@ -440,12 +511,22 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SkidSteerEstimatorConf
         probability=_f(values, "strong_tracking.probability"),
     )
     scales = TireScaleConfig(
-        states=tuple(name for name in SCALE_NAMES if bool(values[f"tire_scales.{name}"])),
+        states=tuple(name for name in (*SCALE_NAMES, RESISTANCE_NAME) if bool(values[f"tire_scales.{name}"])),
         walk_std=_f(values, "tire_scales.walk_std"),
         initial_std=_f(values, "tire_scales.initial_std"),
         min_scale=_f(values, "tire_scales.min"),
         max_scale=_f(values, "tire_scales.max"),
         reversion_time_s=_f(values, "tire_scales.reversion_time"),
+        resistance_nominal=_f(values, "tire_scales.resistance_nominal"),
+        resistance_std=_f(values, "tire_scales.resistance_std"),
+        resistance_time_s=_f(values, "tire_scales.resistance_time"),
+        resistance_max=_f(values, "tire_scales.resistance_max"),
+        resistance_speed=_f(values, "tire_scales.resistance_speed"),
+    )
+    consider = ConsiderConfig(
+        parameters=tuple(name for name in CONSIDER_NAMES if bool(values[f"consider.{name}"])),
+        scale_std=_f(values, "consider.scale_std"),
+        resistance_rms=_f(values, "consider.resistance_rms"),
     )
     zupt = ZuptConfig(
         enabled=bool(values["zupt.enabled"]),
@@ -463,6 +544,7 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SkidSteerEstimatorConf
         filter=values["filter.type"],
         model=values["filter.model"],
         tire_scales=scales,
+        consider=consider,
         process_accel_std=_f(values, "kinematic.process_accel_std"),
         tire_model_std=_f(values, "kinematic.tire_model_std"),
         tire_moment_std=_f(values, "kinematic.tire_moment_std"),

@@ -274,14 +274,63 @@ def _build(name: str) -> Any:
     return reproduction_scenarios()[name]
 
 
-def plan(scenarios: Sequence[str], seeds: Sequence[int]) -> list[Job]:
-    """One job per (scenario, seed), scored from 8 s (2 s for the acceleration run) to the end."""
+def consider_filters() -> dict[str, SkidSteerEstimatorConfig]:
+    """The default with the motion resistance not considered, and considered at three rms values."""
+    from dataclasses import replace
+
+    from terrain_estimation.estimators.skid_steer_consider import ConsiderConfig
+
+    default = SkidSteerEstimatorConfig()
+    out = {"not considered": replace(default, consider=ConsiderConfig(parameters=()))}
+    for rms in CONSIDER_RMS:
+        out[f"rms {rms:g}"] = replace(default, consider=replace(default.consider, resistance_rms=rms))
+    return out
+
+
+#: The motion-resistance rms values of the sensitivity section (the default's among them).
+CONSIDER_RMS = (0.01, 0.02, 0.03)
+
+
+def consider_markdown(rows: Sequence[RunFigures]) -> str:
+    """The sensitivity section: per scenario and resistance rms, the NEES and the per-quantity e²/σ²."""
+    table = summarise(rows)
+    scenarios = list(dict.fromkeys(r.scenario for r in rows))
+    filters = list(dict.fromkeys(r.filter for r in rows))
+    lines = [
+        "| scenario | motion resistance | runs | NEES (3) | NEES windows in band | e2/s2 vx | e2/s2 vy | e2/s2 r | "
+        "vy within 2 sigma |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for sc in scenarios:
+        for f in filters:
+            v = table[(sc, f)]
+            lines.append(
+                f"| {sc} | {f} | {v['runs']:.0f} | {v['mean_nees']:.2f} | {100 * v['nees_share']:.0f} % | "
+                f"{v['normalised_vx']:.2f} | {v['normalised_vy']:.2f} | {v['normalised_r']:.2f} | "
+                f"{100 * v['within_2sigma_vy']:.0f} % |"
+            )
+    in_band = {f: sum(table[(sc, f)]["nees_share"] >= 0.9 for sc in scenarios) for f in filters}
+    lines.append("")
+    lines.append(
+        "Scenarios with at least 90 % of their NEES windows in band: "
+        + ", ".join(f"{f} {n} of {len(scenarios)}" for f, n in in_band.items())
+        + ". The estimates are the same in every row of a scenario (a consider parameter changes only the "
+        "published covariance)."
+    )
+    return "\n".join(lines)
+
+
+def plan(
+    scenarios: Sequence[str], seeds: Sequence[int], filters: Mapping[str, SkidSteerEstimatorConfig] | None = None
+) -> list[Job]:
+    """One job per (scenario, seed), scored from 8 s (2 s for the acceleration run) to the end; ``filters``
+    default to the fair comparison's."""
     import functools
 
     from vehicle_sim.plants.skid_steer_scenarios import reproduction_scenarios
 
     every = reproduction_scenarios()
-    filters = _filters()
+    filters = _filters() if filters is None else dict(filters)
     jobs = []
     for name in scenarios:
         if name not in every:
@@ -418,6 +467,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--scenarios", default=None, help="comma-separated (default: every reproduction scenario)")
     parser.add_argument("--out", default=None, help="Markdown file to write the section 'fair-comparison' into")
     parser.add_argument(
+        "--consider",
+        action="store_true",
+        help="instead: the default with the motion resistance not considered and considered at rms 0.01, 0.02 "
+        "(the default) and 0.03, over every scenario; section 'consider-sensitivity'",
+    )
+    parser.add_argument(
         "--tune",
         action="store_true",
         help="instead: the Q0/R0 grid on the nominal scenario for the baseline (ukf, brush) and the default "
@@ -429,7 +484,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.seeds < 1 or args.jobs < 1:
         raise ValueError(f"--seeds and --jobs must be >= 1, got {args.seeds} and {args.jobs}")
     names = args.scenarios.split(",") if args.scenarios else list(REPRODUCTION_SCENARIO_NAMES)
-    jobs = plan(names, [1000 + i for i in range(args.seeds)])
+    filters = consider_filters() if args.consider else None
+    jobs = plan(names, [1000 + i for i in range(args.seeds)], filters)
     started = time.perf_counter()
 
     def progress(done: int, total: int) -> None:
@@ -439,9 +495,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     rows = compare(jobs, workers=args.jobs, progress=progress)
     print(file=sys.stderr)
-    text = markdown(rows)
+    text = consider_markdown(rows) if args.consider else markdown(rows)
+    flag = " --consider" if args.consider else ""
     header = (
-        f"Produced by `python -m terrain_estimation.tools.skid_compare --seeds {args.seeds}` at revision "
+        f"Produced by `python -m terrain_estimation.tools.skid_compare{flag} --seeds {args.seeds}` at revision "
         f"{git_revision()} in {time.perf_counter() - started:.0f} s ({args.jobs} processes). Truth: "
         "`vehicle_sim.plants.skid_steer_scenarios.reproduction_scenarios()` (magic-formula tire, roll/pitch "
         "dynamics, relaxation; seeds 1000.., sensor noise only). Errors against the plant's truth at 100 Hz "
@@ -452,7 +509,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     print(text)
     if args.out:
-        write_section(args.out, "fair-comparison", header + text)
+        write_section(args.out, "consider-sensitivity" if args.consider else "fair-comparison", header + text)
         print(f"wrote the section to {args.out}", file=sys.stderr)
     return 0
 

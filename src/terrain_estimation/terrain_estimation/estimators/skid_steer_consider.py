@@ -1,0 +1,212 @@
+"""Consider covariance of the skid-steer estimate: what uncertain tire and terrain parameters do to it.
+
+The observer sees ``v_x`` and ``v_y`` only through its tire model: the
+measured specific force fixes the tire forces, and the model turns them into
+slip velocities. A parameter the filter does not estimate (the longitudinal
+stiffness, the friction below saturation, the motion resistance of the
+ground) biases the velocities by the slip it would change, and no process
+noise describes that: the bias is not white and the innovations do not show
+it (the filter's prediction agrees with the measurement through the wrong
+model). On the independent truth plant the unscaled covariance claims a
+``v_x`` 3–10× more certain than it is (docs/results/skid_steer_fair.md).
+
+Estimating such parameters does not help where they are not observable:
+as states (or Schmidt "consider" states inside the sigma-point set) they
+wander with the model error and bias the motion states further (measured:
+RMS ``v_x`` error 5–20× the nominal filter's). Here they are *considered*
+in the classical sense (Schmidt 1966; Tapley, Schutz & Born, *Statistical
+Orbit Determination*, 6.3; Simon, *Optimal State Estimation*, 7.6): the
+filter's estimate is left as it is, and the sensitivity of its error to each
+parameter's deviation is carried alongside,
+
+    Ψ⁻_k = F_s Ψ⁺_{k−1} − F_c,          Ψ⁺_k = (I − K H_s) Ψ⁻_k − K H_c,
+
+with ``F = ∂f/∂[s, c]`` and ``H_c = ∂h/∂c`` at the filter's mean (forward
+differences of the observer's own ``f`` and ``h`` with the parameters as
+extra states at their nominal values), the filter's gain
+``K = P_xz P_zz⁻¹`` and its own statistical linearisation of the update,
+``I − K H_s = P⁺ P̄⁻¹`` (the sigma points' slope, not a forward difference:
+near the brush model's rolling-speed floor the local slope is far steeper
+than what the points see, and a gain paired with it makes the recursion
+unstable). The published covariance is
+``P + Ψ C Ψᵀ`` with ``C = diag(σ_c²)`` the parameters' mean-square
+deviation from the nominal: the mean-square error of a filter that uses the
+nominal value when the truth is off by ``σ_c``, to first order.
+
+A zero-velocity update (the vehicle stands still) resets ``Ψ``: at rest the
+estimate no longer depends on the tire law.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from terrain_estimation.filters.base import Array
+from terrain_estimation.models.skid_steer_scales import RESISTANCE_NAME, STATE_NAMES, TireScaleConfig
+
+__all__ = ["CONSIDER_NAMES", "ConsiderConfig", "ConsiderCovariance"]
+
+#: Parameters that can be considered: the tire scales and the motion-resistance coefficient.
+CONSIDER_NAMES: tuple[str, ...] = STATE_NAMES
+
+
+@dataclass(frozen=True)
+class ConsiderConfig:
+    """Which parameters are considered, and how uncertain they are.
+
+    Attributes:
+        parameters: names from :data:`CONSIDER_NAMES`; a parameter the model
+            estimates (``tire_scales.states``) is skipped. Empty: off.
+            Default: the motion resistance alone, which the brush observer
+            leaves out and which sets the longitudinal slip of every steady
+            run. Considering the friction or the longitudinal stiffness too
+            makes ``v_y`` 50× more cautious than its error on the truth runs
+            (docs/results/skid_steer_fair.md): their ±35 % is far wider than
+            the tire's real uncertainty in shape.
+        scale_std: root-mean-square deviation of ``ln s`` of each considered
+            tire scale (0.3: the nominal μ, C_α or C_x is right within ≈ ±35 %).
+        resistance_rms: root-mean-square motion-resistance coefficient the
+            observer's model leaves out (force per unit normal load). Default
+            0.02: pneumatic tires on firm ground (0.01–0.03, Wong, *Theory of
+            Ground Vehicles*, ch. 1); 0.05–0.1 on grass or soft soil. It is
+            also the simulator's nominal value: 0.01 and 0.03 are reported
+            beside it on the results page.
+        step: forward-difference steps of the Jacobians, relative to
+            ``(1 m/s, 1 m/s, 1 rad/s, 1, …)``.
+    """
+
+    parameters: tuple[str, ...] = (RESISTANCE_NAME,)
+    scale_std: float = 0.3
+    resistance_rms: float = 0.02
+    step: float = 1e-5
+
+    def __post_init__(self) -> None:
+        names = tuple(str(p) for p in self.parameters)
+        unknown = [p for p in names if p not in CONSIDER_NAMES]
+        if unknown or len(set(names)) != len(names):
+            raise ValueError(f"consider.parameters must be distinct names of {CONSIDER_NAMES}, got {self.parameters!r}")
+        object.__setattr__(self, "parameters", tuple(p for p in CONSIDER_NAMES if p in names))
+        for name in ("scale_std", "resistance_rms"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"consider.{name} must be finite and >= 0, got {value}")
+        if not (math.isfinite(self.step) and 0.0 < self.step <= 1e-2):
+            raise ValueError(f"consider.step must be in (0, 0.01], got {self.step}")
+
+
+class ConsiderCovariance:
+    """The sensitivity ``Ψ`` of the estimate to the considered parameters (module docstring).
+
+    Args:
+        config: the considered parameters.
+        model: the filter's observer model (a ``*_scales`` or plain model of
+            :mod:`terrain_estimation.models`).
+        augmented: the same model with the considered parameters as extra
+            states (built by :meth:`for_estimator`).
+        filter_states: the filter's added states (``model``'s extra names).
+    """
+
+    def __init__(self, config: ConsiderConfig, model: Any, augmented: Any, filter_states: tuple[str, ...]) -> None:
+        self.config = config
+        self.model = model
+        self.augmented = augmented
+        extra = augmented.scales.extra
+        self.considered = tuple(p for p in config.parameters if p not in filter_states)
+        n_s = 3 + len(filter_states)
+        self._s = np.array([0, 1, 2, *(3 + extra.index(p) for p in filter_states)], dtype=int)
+        self._c = np.array([3 + extra.index(p) for p in self.considered], dtype=int)
+        self._n_aug = 3 + len(extra)
+        self._x_nominal = np.zeros(self._n_aug)
+        variances = [config.resistance_rms**2 if p == RESISTANCE_NAME else config.scale_std**2 for p in self.considered]
+        self._C = np.diag(variances)
+        self.psi = np.zeros((n_s, len(self.considered)))
+
+    @classmethod
+    def for_estimator(cls, config: ConsiderConfig, estimator_config: Any, model: Any) -> ConsiderCovariance | None:
+        """The consider covariance of an estimator's model, or None when nothing is considered."""
+        filter_states = tuple(estimator_config.scale_states)
+        considered = tuple(p for p in config.parameters if p not in filter_states)
+        if not considered:
+            return None
+        base = (
+            estimator_config.tire_scales if estimator_config.model.endswith("_scales") else TireScaleConfig(states=())
+        )
+        # The considered parameters as extra states at the filter's nominal model: scales 1 and no resistance.
+        scales = replace(base, states=filter_states + considered, resistance_nominal=0.0)
+        kind = (
+            estimator_config.model if estimator_config.model.endswith("_scales") else estimator_config.model + "_scales"
+        )
+        augmented = replace(estimator_config, model=kind, tire_scales=scales).make_model()
+        if hasattr(model, "yaw_moment") and augmented.yaw_moment != model.yaw_moment:
+            augmented.yaw_moment = model.yaw_moment
+            augmented._r_sqrt = np.asarray(model.measurement_noise_sqrt(), dtype=float)
+        return cls(config, model, augmented, filter_states)
+
+    @property
+    def count(self) -> int:
+        """Number of considered parameters."""
+        return len(self.considered)
+
+    def reset(self) -> None:
+        """Forget the sensitivity: a (re)start, or a zero-velocity update."""
+        self.psi[:] = 0.0
+
+    def _directional(self, fn: Any, x: Array, directions: Array) -> Array:
+        """Forward-difference derivatives ``(rows, k)`` of ``fn`` (``f`` or ``h`` over points) at the filter
+        mean ``x`` along the augmented-state ``directions`` ``(n_aug, k)``: one evaluation per direction."""
+        xa = self._x_nominal.copy()
+        xa[self._s] = x
+        scale = np.maximum(np.abs(directions).max(axis=0), 1.0)
+        eps = self.config.step / scale
+        points = np.repeat(xa[None, :], directions.shape[1] + 1, axis=0)
+        points[1:] += (directions * eps).T
+        out = np.asarray(fn(points), dtype=float)
+        return ((out[1:] - out[0]) / eps[:, None]).T
+
+    def step(self, x_prev: Array, x_post: Array, result: Any, P_post: Array, u: Any, dt: float) -> None:
+        """Carry ``Ψ`` over one filter step.
+
+        ``F_s Ψ − F_c`` is the derivative of ``f`` along ``[Ψ; −I]`` (one
+        direction per considered parameter, not a full Jacobian), and ``H_c``
+        that of ``h`` along the parameters.
+
+        Args:
+            x_prev: the previous posterior mean (the prediction's linearisation point).
+            x_post: the posterior mean (where ``H_c`` is taken).
+            result: the filter's :class:`~terrain_estimation.filters.an_stukf.AnStukfResult`
+                (``prior_cov``, ``cross_cov``, ``innovation_cov``, ``accepted``).
+            P_post: the posterior covariance.
+            u, dt: the step's input and length.
+
+        Raises:
+            ValueError: a derivative is not finite or the filter's moments are missing (the caller resets).
+        """
+        k = self.count
+        directions = np.zeros((self._n_aug, k))
+        directions[self._s] = self.psi
+        directions[self._c, np.arange(k)] = -1.0
+        psi = self._directional(lambda pts: self.augmented.f(pts, u, dt), np.asarray(x_prev, dtype=float), directions)
+        psi = psi[self._s]
+        if result.accepted:
+            if result.prior_cov is None or result.cross_cov is None:
+                raise ValueError("consider covariance: the filter did not report its update's moments")
+            # The filter's own linearisation: P⁺ P̄⁻¹ = I − K H̃_s (its points, not a forward difference,
+            # which is far steeper than the sigma points see near the brush model's rolling-speed floor).
+            unit = np.zeros((self._n_aug, k))
+            unit[self._c, np.arange(k)] = 1.0
+            H_c = self._directional(lambda pts: self.augmented.h(pts, u), np.asarray(x_post, dtype=float), unit)
+            K = np.linalg.solve(np.asarray(result.innovation_cov, dtype=float), np.asarray(result.cross_cov).T).T
+            psi = np.asarray(P_post, dtype=float) @ np.linalg.solve(result.prior_cov, psi) - K @ H_c
+        if not np.isfinite(psi).all():
+            raise ValueError("consider covariance: the sensitivity is not finite")
+        self.psi = psi
+
+    def covariance(self) -> Array:
+        """``Ψ C Ψᵀ`` ``(n_s, n_s)``: what the considered parameters add to the filter's covariance."""
+        a = self.psi * np.sqrt(np.diag(self._C))
+        m = a @ a.T
+        return 0.5 * (m + m.T)  # exactly symmetric (the published covariances are checked for it)
