@@ -46,7 +46,7 @@ def test_quick_run_writes_report_and_figures(tmp_path: Path, capsys: pytest.Capt
     report = out / "quarter_car.md"
     assert report.is_file()
     text = report.read_text(encoding="utf-8")
-    for heading in CASE_HEADINGS:
+    for heading in CASE_HEADINGS + ["## Case 2b ", "## Case 2c "]:
         assert heading in text, f"missing section {heading!r}"
     assert "## What did not reproduce and why" in text
     assert "Git revision" in text and "Wall time" in text and "Seeds" in text

@@ -129,11 +129,17 @@ def test_divergence_recovers_from_the_last_good_estimate(spiked):
 
 
 def test_without_the_monitor_the_spike_ruins_the_estimate(spiked):
-    """The control: the same stream without divergence protection."""
-    est = SoilStiffnessEstimator(config())
+    """The control: the same stream without divergence protection and without the soil-change re-open."""
+    no_reopen = {"change_reopen_scale": 0.0, "change_ktot_std_frac": 0.0, "change_jump_gain": 0.0}
+    est = SoilStiffnessEstimator(config(**no_reopen))
     out = drive(est, spiked)
     assert est.fault is None and est.counters.divergences == 0
     assert abs(out[-1].k_s / spiked.k_s - 1.0) > 0.5
+    # With its defaults the soil-change detector (armed from the start) sees the corrections after the
+    # spike keep one sign, moves and re-opens the stiffness, and the estimate comes back (flagged as changes).
+    est = SoilStiffnessEstimator(config())
+    out = drive(est, spiked)
+    assert est.counters.soil_changes >= 1 and abs(out[-1].k_s / spiked.k_s - 1.0) < 0.05
 
 
 def test_divergence_config_is_validated():

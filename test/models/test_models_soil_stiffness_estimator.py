@@ -452,3 +452,50 @@ def test_both_stiffness_states_converge_and_follow_a_soil_change(state: str) -> 
     if state == "log_k_s":
         # ln k_s is the state: the reported k_tot never reaches the tire stiffness
         assert max(e.k_tot for e in out) < KT
+
+
+# -- soil-change detector armed from the start, re-open sized by the innovation (issue 21, item 4) --
+
+KS_LETE = 2283.0e3
+
+
+def _log_ks_estimator(**kwargs: float) -> SoilStiffnessEstimator:
+    qc = QuarterCarParams(stiffness_state="log_k_s")
+    return SoilStiffnessEstimator(SoilStiffnessEstimatorConfig(quarter_car=qc, **kwargs))  # type: ignore[arg-type]
+
+
+def test_detector_is_armed_without_convergence() -> None:
+    """An estimate that never counts as converged (threshold 1e-6) still sees Graneville → Upland at once."""
+    change_at = 5.0
+    run = (*_simulate_quarter_car(lambda t: KS_GRANEVILLE if t < change_at else KS_UPLAND, 7.0, 10.0), 10.0)
+    est = _log_ks_estimator(convergence_rel_std=1e-6)
+    out, _ = _drive(est, run)
+    assert not any(e.converged for e in out)
+    alarms = [e.t for e in out if e.soil_change_detected]
+    assert len(alarms) == 1 and change_at < alarms[0] < change_at + 0.2
+    assert est.last_change is not None and est.last_change.jump < 0
+    tt = np.array([e.t for e in out])
+    err = np.array([100.0 * (e.k_s - KS_UPLAND) / KS_UPLAND for e in out])
+    assert np.abs(err[tt > change_at + 0.5]).max() < 5.0
+    assert all(math.isfinite(e.k_s) and math.isfinite(e.k_s_variance) for e in out)
+
+
+def test_reopen_is_sized_by_the_innovation_on_lete_to_upland() -> None:
+    """LETE sand → Upland sandy loam (ln k_s −2.35): the re-open follows the jump, not a fixed 0.7."""
+    change_at = 4.0
+    run = (*_simulate_quarter_car(lambda t: KS_LETE if t < change_at else KS_UPLAND, 6.0, 10.0), 10.0)
+    est = _log_ks_estimator()
+    out, _ = _drive(est, run)
+    alarms = [(e.t) for e in out if e.soil_change_detected and e.t > change_at]
+    assert alarms and alarms[0] < change_at + 0.2
+    change = est.last_change
+    assert change is not None and change.jump < -1.0 and change.reopen_std > 1.0
+    tt = np.array([e.t for e in out])
+    err = np.array([100.0 * (e.k_s - KS_UPLAND) / KS_UPLAND for e in out])
+    late = tt > change_at + 0.5
+    assert np.abs(err[late]).max() < 5.0
+    # the former fixed re-open (0.7 in ln k_s, in place) is still far off half a second after the change
+    old = _log_ks_estimator(change_reopen_scale=0.0, change_jump_gain=0.0, change_log_ks_std=0.7)
+    out_old, _ = _drive(old, run)
+    err_old = np.array([100.0 * (e.k_s - KS_UPLAND) / KS_UPLAND for e in out_old])
+    assert np.abs(err_old[late]).mean() > 2.0 * np.abs(err[late]).mean()

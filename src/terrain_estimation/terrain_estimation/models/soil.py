@@ -241,7 +241,12 @@ class CusumDetector:
     ``g⁺ ← max(0, g⁺ + e_k − ν)``, ``g⁻ ← max(0, g⁻ − e_k − ν)``; an alarm is
     raised when either exceeds ``threshold`` h, after which both restart from 0.
 
-    The estimator feeds it the k_tot correction of each accepted update,
+    The plain statistic. The soil-stiffness estimator now uses
+    :class:`~terrain_estimation.estimators.soil_change.SoilChangeDetector`
+    (the same CUSUM on the same standardised correction, clipped, armed from
+    the first update, with the innovation-implied jump that sizes the
+    re-open); what follows is how this class was used before and still holds
+    for the statistic. The estimator fed it the k_tot correction of each accepted update,
     normalised by its predicted standard deviation,
     ``e_k = Δk̂_tot / √(P⁻_kk − P⁺_kk)``: for a consistent filter the
     innovations are white with covariance S, so ``Δk̂_tot = W_k ν`` is white

@@ -196,21 +196,58 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
         "estimator.class_log_std", 0.1, "[-] within-class spread of ln k_s for the terrain classifier", 1e-3, 10.0
     ),
     ParamSpec("estimator.unknown_weight", 0.05, "[-] prior weight of 'none of the known soils'", 0.0, 0.99),
-    ParamSpec("estimator.change_drift", 1.0, "[sigma] CUSUM allowance of the soil-change detector", 0.0, 100.0),
-    ParamSpec("estimator.change_threshold", 50.0, "[sigma] CUSUM alarm level of the soil-change detector", 1e-3, 1e6),
+    ParamSpec(
+        "estimator.change_drift",
+        0.5,
+        "[sigma] CUSUM allowance of the soil-change detector (whitened stiffness corrections, armed from the "
+        "start): about half the smallest shift per update worth detecting; must be below change_clip",
+        0.0,
+        50.0,
+    ),
+    ParamSpec(
+        "estimator.change_threshold",
+        20.0,
+        "[sigma] CUSUM alarm level of the soil-change detector: larger, fewer false alarms and a longer delay",
+        1e-3,
+        1e6,
+    ),
+    ParamSpec(
+        "estimator.change_clip",
+        20.0,
+        "[sigma] standardised corrections are clipped to +-clip before the CUSUM; with clip - change_drift below "
+        "change_threshold no single outlier raises an alarm; must exceed change_drift",
+        0.1,
+        1e6,
+    ),
+    ParamSpec(
+        "estimator.change_reopen_scale",
+        0.5,
+        "[-] on a soil change the stiffness std grows by this multiple of the innovation-implied jump "
+        "(bounded below by change_ktot_std_frac / change_log_ks_std, above by the initial std; the motion "
+        "states' variances grow by their initial values); 0 with a zero floor: no re-open",
+        0.0,
+        10.0,
+    ),
+    ParamSpec(
+        "estimator.change_jump_gain",
+        1.0,
+        "[-] on a soil change the stiffness mean moves by this fraction of the innovation-implied jump "
+        "(1: restart at the implied new soil; 0: re-open in place)",
+        0.0,
+        1.0,
+    ),
     ParamSpec(
         "estimator.change_ktot_std_frac",
         0.2,
-        "[-] k_tot std added on a detected soil change, as a fraction of the series stiffness "
-        "(stiffness_state k_tot; 0: off)",
+        "[-] least k_tot std added on a detected soil change, as a fraction of the series stiffness "
+        "(stiffness_state k_tot)",
         0.0,
         1.0,
     ),
     ParamSpec(
         "estimator.change_log_ks_std",
-        0.7,
-        "[-] std of ln k_s added on a detected soil change (stiffness_state log_k_s; 0.7: a factor 2 at "
-        "one sigma; 0: off)",
+        0.3,
+        "[-] least std of ln k_s added on a detected soil change (stiffness_state log_k_s; 0.3: a factor 1.35)",
         0.0,
         5.0,
     ),
@@ -383,6 +420,9 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SoilStiffnessEstimator
         unknown_weight=_f(values, "estimator.unknown_weight"),
         change_drift=_f(values, "estimator.change_drift"),
         change_threshold=_f(values, "estimator.change_threshold"),
+        change_clip=_f(values, "estimator.change_clip"),
+        change_reopen_scale=_f(values, "estimator.change_reopen_scale"),
+        change_jump_gain=_f(values, "estimator.change_jump_gain"),
         change_ktot_std_frac=_f(values, "estimator.change_ktot_std_frac"),
         change_log_ks_std=_f(values, "estimator.change_log_ks_std"),
         profile_smoothing_s=_f(values, "estimator.profile_smoothing"),
