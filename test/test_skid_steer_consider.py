@@ -75,7 +75,14 @@ def test_consider_settings_are_checked_and_come_from_parameters():
         ConsiderConfig(resistance_rms=-0.1)
     values = dict(estimator_parameters(VEHICLES["skid_steer"], None))
     assert estimator_config(values).consider == SkidSteerEstimatorConfig().consider
-    values.update({"consider.motion_resistance": False, "consider.friction": True, "consider.scale_std": 0.1})
+    values.update(
+        {
+            "consider.motion_resistance": False,
+            "consider.longitudinal_stiffness": False,
+            "consider.friction": True,
+            "consider.scale_std": 0.1,
+        }
+    )
     c = estimator_config(values).consider
     assert c.parameters == ("friction",) and c.scale_std == 0.1
     # The paper's filter as reconstructed considers nothing (its figures stay bit for bit).

@@ -61,14 +61,18 @@ class ConsiderConfig:
     Attributes:
         parameters: names from :data:`CONSIDER_NAMES`; a parameter the model
             estimates (``tire_scales.states``) is skipped. Empty: off.
-            Default: the motion resistance alone, which the brush observer
-            leaves out and which sets the longitudinal slip of every steady
-            run. Considering the friction or the longitudinal stiffness too
-            makes ``v_y`` 50× more cautious than its error on the truth runs
-            (docs/results/skid_steer_fair.md): their ±35 % is far wider than
-            the tire's real uncertainty in shape.
+            Default: the motion resistance, which the brush observer leaves
+            out and which sets the longitudinal slip of every steady run, and
+            the longitudinal stiffness, which stands for the brush law's error
+            in shape along the slip (a real tire's force is not the brush
+            law's at any C_x).
         scale_std: root-mean-square deviation of ``ln s`` of each considered
-            tire scale (0.3: the nominal μ, C_α or C_x is right within ≈ ±35 %).
+            tire scale. Default 0.05, chosen on the nominal truth run as the
+            value whose NEES is nearest 3 (0: 7.8, 0.05: 3.0, 0.1: 2.4; the
+            adaptive default filter, docs/results/skid_steer_fair.md): it
+            stands for the shape error, not for a datasheet's tolerance of
+            C_x. A datasheet-like ±30 % on μ or C_x makes ``v_y`` 50× more
+            cautious than its error.
         resistance_rms: root-mean-square motion-resistance coefficient the
             observer's model leaves out (force per unit normal load). Default
             0.02: pneumatic tires on firm ground (0.01–0.03, Wong, *Theory of
@@ -79,8 +83,8 @@ class ConsiderConfig:
             ``(1 m/s, 1 m/s, 1 rad/s, 1, …)``.
     """
 
-    parameters: tuple[str, ...] = (RESISTANCE_NAME,)
-    scale_std: float = 0.3
+    parameters: tuple[str, ...] = ("longitudinal_stiffness", RESISTANCE_NAME)
+    scale_std: float = 0.05
     resistance_rms: float = 0.02
     step: float = 1e-5
 

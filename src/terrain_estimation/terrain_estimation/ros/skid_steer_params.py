@@ -104,7 +104,7 @@ VEHICLE_SPECS_SKID_STEER: tuple[ParamSpec, ...] = (
 )
 
 _ST = StrongTrackingConfig()
-_NA = InnovationNoiseConfig()
+_NA = SkidSteerEstimatorConfig().noise_adaptation
 
 
 _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
@@ -310,7 +310,8 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "adaptive_noise.adapt_r",
         _NA.adapt_r,
-        "filter.type adaptive*: scale each channel of R0 by what its innovations show (covariance matching)",
+        "filter.type adaptive*: scale each channel of R0 by what its innovations show (covariance matching); off by "
+        "default: R0 is the IMU's noise, and one-step innovations cannot separate Q from R",
     ),
     ParamSpec("adaptive_noise.adapt_q", _NA.adapt_q, "filter.type adaptive*: scale Q0 by what the innovations show"),
     ParamSpec(

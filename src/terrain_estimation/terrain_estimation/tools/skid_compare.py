@@ -36,6 +36,8 @@ from numpy.typing import NDArray
 from terrain_estimation.analysis.consistency import consistency_report
 from terrain_estimation.cli import cli_main
 from terrain_estimation.estimators.skid_steer import SkidSteerEstimator, SkidSteerEstimatorConfig
+from terrain_estimation.estimators.skid_steer_consider import ConsiderConfig
+from terrain_estimation.filters.noise_adaptation import InnovationNoiseConfig
 
 __all__ = [
     "BETA_MIN_SPEED",
@@ -253,17 +255,23 @@ UKF_TUNED_R0 = (0.2**2, 0.2**2, 0.002**2)
 def _filters() -> dict[str, SkidSteerEstimatorConfig]:
     return {
         "paper AN-STUKF": SkidSteerEstimatorConfig.paper(),
-        "UKF, tuned": SkidSteerEstimatorConfig(filter="ukf", model="brush", q0_diag=UKF_TUNED_Q0, r0_diag=UKF_TUNED_R0),
+        "UKF, tuned": SkidSteerEstimatorConfig(
+            filter="ukf",
+            model="brush",
+            q0_diag=UKF_TUNED_Q0,
+            r0_diag=UKF_TUNED_R0,
+            consider=ConsiderConfig(parameters=()),
+        ),
         "default": SkidSteerEstimatorConfig(),
-        "adaptive": SkidSteerEstimatorConfig(filter="adaptive"),
+        "adaptive Q and R": SkidSteerEstimatorConfig(noise_adaptation=InnovationNoiseConfig()),
     }
 
 
 #: The filters of the fair reproduction: the paper's AN-STUKF as reconstructed, the fair baseline (a UKF over
-#: the paper's brush model tuned consistently on the nominal plant), the project's default (UKF over the brush
-#: model with the cornering-stiffness scale as a state, Q0/R0 sized the same way) and the default model
-#: with the innovation-adaptive filter.
-FILTERS: tuple[str, ...] = ("paper AN-STUKF", "UKF, tuned", "default", "adaptive")
+#: the paper's brush model tuned consistently on the nominal plant), the project's default (the brush model
+#: with the cornering-stiffness scale as a state, Q matched to the innovations with R the sensors' noise,
+#: the motion resistance and the longitudinal stiffness considered) and the default adapting R as well.
+FILTERS: tuple[str, ...] = ("paper AN-STUKF", "UKF, tuned", "default", "adaptive Q and R")
 
 _WINDOWS = {"straight_acceleration": 2.0}
 
@@ -399,23 +407,23 @@ TUNING_GYRO_STD: tuple[float, ...] = (0.002, 0.005)
 
 
 def tuning_grid(
-    model: str, filter_type: str, seeds: Sequence[int], *, workers: int = 1
+    base: SkidSteerEstimatorConfig, seeds: Sequence[int], *, workers: int = 1
 ) -> list[tuple[tuple[float, float, float], dict[str, float]]]:
-    """Q0/R0 on a grid, each scored on the nominal scenario: ((q scale, σ_a, σ_g), seed-mean figures).
+    """Q0/R0 of ``base`` on a grid, each scored on the nominal scenario: ((q scale, σ_a, σ_g), seed-mean figures).
 
     The consistent choice is the one whose mean NIS and mean NEES are both nearest 3
     (cost ``|ln(NIS/3)| + |ln(NEES/3)|``, reported as ``cost``).
     """
     import functools
     import itertools
+    from dataclasses import replace
 
     from terrain_estimation.models.skid_steer_observer import DEFAULT_Q0_DIAG
 
     grid = list(itertools.product(TUNING_Q_SCALES, TUNING_ACCEL_STD, TUNING_GYRO_STD))
     filters = {
-        f"{q:g},{a:g},{g:g}": SkidSteerEstimatorConfig(
-            filter=filter_type,  # type: ignore[arg-type]
-            model=model,  # type: ignore[arg-type]
+        f"{q:g},{a:g},{g:g}": replace(
+            base,
             q0_diag=tuple(q * v for v in DEFAULT_Q0_DIAG),  # type: ignore[arg-type]
             r0_diag=(a**2, a**2, g**2),
         )
@@ -476,7 +484,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--tune",
         action="store_true",
         help="instead: the Q0/R0 grid on the nominal scenario for the baseline (ukf, brush) and the default "
-        "(ukf, brush_scales); section 'consistent-tuning'",
+        "(its filter over brush_scales); section 'consistent-tuning'",
     )
     args = parser.parse_args(argv)
     if args.tune:
@@ -523,9 +531,9 @@ def _tune(seeds: int, jobs: int, out: str | None) -> int:
     filters = _filters()
     shipped = {"brush": filters["UKF, tuned"], "brush_scales": filters["default"]}
     for model, config in shipped.items():
-        print(f"tuning ukf over {model} ({seeds} seeds)", file=sys.stderr, flush=True)
-        grid = tuning_grid(model, "ukf", [1000 + i for i in range(seeds)], workers=jobs)
-        parts.append(tuning_markdown(model, "ukf", grid))
+        print(f"tuning {config.filter} over {model} ({seeds} seeds)", file=sys.stderr, flush=True)
+        grid = tuning_grid(config, [1000 + i for i in range(seeds)], workers=jobs)
+        parts.append(tuning_markdown(model, config.filter, grid))
         # The shipped constants against the grid's choice, each time the grid runs.
         (q, a, g), _ = min(grid, key=lambda row: row[1]["cost"])
         chosen = (tuple(q * v for v in DEFAULT_Q0_DIAG), (a**2, a**2, g**2))
