@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 from terrain_estimation.cli import cli_main
 from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimator, SoilStiffnessEstimatorConfig
 from terrain_estimation.models.quarter_car import LRVParams, QuarterCarParams
-from terrain_estimation.tools.reporting import Report, SummaryRow, reproduction_arguments
+from terrain_estimation.tools.reporting import Report, SummaryRow, keep_sections, reproduction_arguments
 from terrain_estimation.tools.reporting import cpu_seconds as _cpu_seconds
 from terrain_estimation.tools.reporting import format_number as _fmt
 from terrain_estimation.tools.reporting import git_revision as _git_revision
@@ -1670,6 +1670,8 @@ def _write_report(
         "",
     ]
     text = "\n".join(header) + "\n" + "\n\n".join(rep.sections) + "\n\n" + "\n".join(tail)
+    if rep.out.exists():  # sections written by other commands (e.g. qc_consistency) stay
+        text = keep_sections(rep.out.read_text(encoding="utf-8"), text)
     rep.out.write_text(text, encoding="utf-8")
     return rep.out
 
