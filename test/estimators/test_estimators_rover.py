@@ -157,9 +157,10 @@ def test_estimators_recover_the_steady_state(axes: int) -> None:
     assert np.all(rms(settled, "contact_angle", np.full(3, case.slope)) < 0.01)
     assert np.all(rms(settled, "normal_load", case.normal_load) < 0.05)
     assert np.all(rms(settled, "drawbar_pull", case.drawbar_pull) < (0.2 if axes == 2 else 0.3))
-    # Reported variances are of the size of the errors (within a factor of ≈ 5 either way).
+    # Reported variances are of the size of the errors (within a factor of ≈ 5 either way): the slip's
+    # per-window measurement error is ≈ 0.016, its filtered error a few thousandths (issue 21).
     last = out[-1].wheel("front")
-    assert 0.01 < math.sqrt(last.slip_variance) < 0.05
+    assert 0.002 < math.sqrt(last.slip_variance) < 0.02
     assert 1e-3 < math.sqrt(last.drawbar_pull_variance) < 1.0
 
 

@@ -72,6 +72,7 @@ from terrain_estimation.tools.reporting import format_number as _fmt
 from terrain_estimation.tools.reporting import git_revision as _git_revision
 from terrain_estimation.tools.reporting import pyplot as _plt
 from terrain_estimation.tools.reporting import summary_stats as _stats
+from terrain_estimation.tools.rover_consistency import section_consistency
 from terrain_estimation.tools.rover_model_error import (
     FitError,
     online_lines,
@@ -362,6 +363,8 @@ class Series:
     samples: dict[str, FloatArray]  # accumulator samples: t, slip, normal_load, drawbar_pull, resistive_torque
     accumulator: dict[str, int]
     fits: list[TerrainResponseFit] = field(default_factory=list)  # the online models, one per kept sample period
+    variances: dict[str, FloatArray] = field(default_factory=dict)  # _EST_FIELDS → (N, 3) published variances
+    settled: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))  # WheelTerrainArray.settled
 
 
 def estimate_run(time_s: FloatArray, sensors: RoverSensors, variant: str) -> Series:
@@ -414,6 +417,10 @@ def estimate_run(time_s: FloatArray, sensors: RoverSensors, variant: str) -> Ser
         samples=accumulator.samples(),
         accumulator=dataclasses.asdict(accumulator.counters),
         fits=fits,
+        variances={
+            q: np.array([e.per_wheel(f"{q}_variance") for e in out], dtype=float).reshape(-1, 3) for q in _EST_FIELDS
+        },
+        settled=np.array([e.settled for e in out], dtype=bool),
     )
 
 
@@ -2438,6 +2445,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     _table67(rr, res, counts, surrogate)
     _section_curvature(rr, res, counts)
     _section_speed(rr, res, counts)
+    section_consistency(rr, res, ALL_VARIANTS, VARIANTS)
     wall = time.monotonic() - start
     cpu = _cpu_seconds() - cpu0
     path = _write_report(rr, res, counts, argv_list, args.jobs, wall, cpu, args.quick, len(plan), args.terramechanics)

@@ -30,7 +30,7 @@ contract's topics (CONTRACT.md, "Rocker-bogie rover"):
   slip, normal load W, drawbar pull DP, resistive torque τ_R and contact angle
   γ (terrain tangent below the horizontal, positive descending forward — the
   estimator's ``contact_angle``) of every wheel at the sample's time;
-  variances 0.
+  variances 0, ``settled`` true.
 * ``/clock`` is published by the framework.
 
 Every message of a step carries the sample's time t = k / 50 Hz (from 0).
@@ -424,7 +424,8 @@ def wheel_terrain_truth(sample: RoverSample, frame_id: str) -> WheelTerrainArray
                 contact_angle=float(tr.contact_angle[j]),
             )
             for j, name in enumerate(WHEELS)
-        ]
+        ],
+        settled=True,  # the truth needs no settling
     )
     msg.header.stamp = sec_to_stamp(sample.t)
     msg.header.frame_id = frame_id
