@@ -31,6 +31,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
 from robustness_harness import all_finite, bag_items
 
+from terrain_estimation.estimators.rover_noise import considered_variances
 from terrain_estimation.filters.base import GaussianState
 from terrain_estimation.ros.nodes import make_estimator_node
 from terrain_estimation.vehicles import VEHICLES, estimator_parameters
@@ -360,7 +361,10 @@ def test_rover_wheel_force_blow_up_restarts_estimator_2_only() -> None:
     x2 = np.array([[w.contact_angle, w.normal_load, w.drawbar_pull] for w in hit.wheels]).T.ravel()
     np.testing.assert_allclose(x2, good2.x)
     v2 = np.array([[w.contact_angle_variance, w.normal_load_variance, w.drawbar_pull_variance] for w in hit.wheels])
-    np.testing.assert_allclose(v2.T.ravel(), 100.0 * np.diag(est._p2))
+    # Published with the contact-angle error considered (issue 21): σ_b², DP² σ_b², W² σ_b² on top.
+    p2 = 100.0 * np.diag(est._p2)
+    considered = considered_variances(p2[0:3], x2[3:6], p2[3:6], x2[6:9], p2[6:9], est.config.contact_angle_bias)
+    np.testing.assert_allclose(v2.T.ravel(), np.concatenate(considered))
     assert good1 is not None and est._monitors[0].divergences == 0  # Estimator 1 went on
     assert est.fault is None and not adapter.health.errors
 
