@@ -82,12 +82,13 @@ reproduce: reproduce-qc reproduce-skid reproduce-rover
 
 reproduce-qc: setup
 	$(PY) -m terrain_estimation.tools.reproduce_qc --out docs/results --jobs 2
+	$(PY) -m terrain_estimation.tools.qc_consistency --out docs/results/quarter_car.md --jobs 2
 
 reproduce-skid: setup
 	$(PY) -m terrain_estimation.tools.reproduce_skid --out docs/results --jobs 2
 	$(PY) -m terrain_estimation.tools.skid_compare --tune --seeds 2 --jobs 2 --out docs/results/skid_steer_fair.md
 	$(PY) -m terrain_estimation.tools.skid_compare --seeds 20 --jobs 2 --out docs/results/skid_steer_fair.md
-	$(PY) -m terrain_estimation.tools.skid_compare --consider --seeds 5 --jobs 2 --out docs/results/skid_steer_fair.md
+	$(PY) -m terrain_estimation.tools.skid_compare --consider --seeds 2 --scenarios nominal --jobs 2 --out docs/results/skid_steer_fair.md
 
 reproduce-rover: setup
 	$(PY) -m terrain_estimation.tools.reproduce_rover --out docs/results --jobs 2

@@ -68,14 +68,20 @@ def test_command_line_writes_its_section(tmp_path, capsys) -> None:
     assert "--seeds and --jobs must be >= 1" in capsys.readouterr().err
 
 
-def test_consider_section_holds_the_estimates_and_ranks_the_rms() -> None:
-    """The sensitivity section: the same estimates in every row, the variance growing with the rms."""
-    from terrain_estimation.tools.skid_compare import compare, consider_filters, consider_markdown, plan
+def test_consider_section_holds_the_estimates_and_ranks_the_settings() -> None:
+    """The sensitivity section: the same estimates in every row, the variance growing with what is considered."""
+    from terrain_estimation.tools.skid_compare import (
+        CONSIDER_SETS,
+        compare,
+        consider_filters,
+        consider_markdown,
+        plan,
+    )
 
     rows = compare(plan(["straight_acceleration"], [1000], consider_filters()))
     by = {r.filter: r for r in rows}
-    assert list(by) == ["not considered", "rms 0.01", "rms 0.02", "rms 0.03"]
+    assert list(by) == list(CONSIDER_SETS)
     assert len({(r.rms_vx, r.rms_vy, r.mean_abs_beta) for r in rows}) == 1
     vx = [by[f].normalised_vx for f in by]
     assert vx == sorted(vx, reverse=True) and vx[0] > 5.0 * vx[2]
-    assert "| straight_acceleration | rms 0.02 | 1 |" in consider_markdown(rows)
+    assert "| straight_acceleration | resistance 0.02, C_x 5 % (default) | 1 |" in consider_markdown(rows)

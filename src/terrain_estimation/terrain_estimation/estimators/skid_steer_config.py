@@ -90,11 +90,10 @@ class SkidSteerEstimatorConfig:
             Default ``"adaptive"`` with ``noise_adaptation.adapt_r`` off: R is
             the IMU's datasheet noise, Q is what the model error decides and
             what no fixed value gets right in every manoeuvre (on the truth
-            plant a fixed Q that is consistent in the nominal turn is 6×
-            over-confident on a bank and in the S-curve, and one sized for
-            those is over-cautious in the turn; matched to the innovations, the
-            NIS sits in its band in most 2 s windows of every run,
-            docs/results/skid_steer_fair.md). One-step innovations cannot
+            plant a fixed Q sized on the nominal turn gives a NIS of 20 on a
+            5° bank, one sized for the bank is over-cautious in the turn;
+            matched to the innovations, the NIS sits in its band in far more
+            2 s windows, docs/results/skid_steer_fair.md). One-step innovations cannot
             separate Q from R (:mod:`~terrain_estimation.filters.noise_adaptation`),
             so only Q adapts.
         model: observer model (module docstring); default ``"brush_scales"``

@@ -68,17 +68,15 @@ class ConsiderConfig:
             law's at any C_x).
         scale_std: root-mean-square deviation of ``ln s`` of each considered
             tire scale. Default 0.05, chosen on the nominal truth run as the
-            value whose NEES is nearest 3 (0: 7.8, 0.05: 3.0, 0.1: 2.4; the
-            adaptive default filter, docs/results/skid_steer_fair.md): it
-            stands for the shape error, not for a datasheet's tolerance of
-            C_x. A datasheet-like ±30 % on μ or C_x makes ``v_y`` 50× more
-            cautious than its error.
+            setting whose NEES is nearest 3 (``skid_compare --consider``,
+            section "consider-sensitivity" of docs/results/skid_steer_fair.md):
+            it stands for the shape error, not for a datasheet's tolerance of
+            C_x, whose ±30 % makes the published variances far too cautious.
         resistance_rms: root-mean-square motion-resistance coefficient the
             observer's model leaves out (force per unit normal load). Default
             0.02: pneumatic tires on firm ground (0.01–0.03, Wong, *Theory of
             Ground Vehicles*, ch. 1); 0.05–0.1 on grass or soft soil. It is
-            also the simulator's nominal value: 0.01 and 0.03 are reported
-            beside it on the results page.
+            also the simulator's nominal value.
         step: forward-difference steps of the Jacobians, relative to
             ``(1 m/s, 1 m/s, 1 rad/s, 1, …)``.
     """

@@ -131,8 +131,8 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("filter.ukf_kappa", 0.0, "[-] UKF kappa (3 - n = 0)", -2.9, 10.0),
     ParamSpec("filter.gate_threshold", 0.0, "[-] NIS gate on updates (chi^2_3 quantile); 0 disables", 0.0, 1e6),
     *divergence_specs(
-        "false: with the default filter.r0_diag (4x the accelerometer noise) the mean NIS is about 0.2 against 3 "
-        "on healthy data, every variant (refused for an_stukf, whose adaptive noise rescales the innovations)"
+        "false: with B.10's noise (the paper's filters) the mean NIS is 0.2-0.5 against 3 on healthy data "
+        "(refused for an_stukf, whose adaptive noise rescales the innovations)"
     ),
     ParamSpec(
         "filter.q0_diag",

@@ -283,29 +283,36 @@ def _build(name: str) -> Any:
 
 
 def consider_filters() -> dict[str, SkidSteerEstimatorConfig]:
-    """The default with the motion resistance not considered, and considered at three rms values."""
+    """The default with the consider parameters of :data:`CONSIDER_SETS` (its own among them)."""
     from dataclasses import replace
 
     from terrain_estimation.estimators.skid_steer_consider import ConsiderConfig
 
     default = SkidSteerEstimatorConfig()
-    out = {"not considered": replace(default, consider=ConsiderConfig(parameters=()))}
-    for rms in CONSIDER_RMS:
-        out[f"rms {rms:g}"] = replace(default, consider=replace(default.consider, resistance_rms=rms))
-    return out
+    return {
+        name: replace(default, consider=ConsiderConfig(parameters=params, scale_std=std, resistance_rms=rms))
+        for name, (params, std, rms) in CONSIDER_SETS.items()
+    }
 
 
-#: The motion-resistance rms values of the sensitivity section (the default's among them).
-CONSIDER_RMS = (0.01, 0.02, 0.03)
+#: The consider settings of the sensitivity section: (parameters, scale_std, resistance_rms) by name; the
+#: default's is the one whose NEES is nearest 3 on the nominal run.
+CONSIDER_SETS: dict[str, tuple[tuple[str, ...], float, float]] = {
+    "none": ((), 0.05, 0.02),
+    "resistance 0.02": (("motion_resistance",), 0.05, 0.02),
+    "resistance 0.02, C_x 5 % (default)": (("longitudinal_stiffness", "motion_resistance"), 0.05, 0.02),
+    "resistance 0.02, C_x 10 %": (("longitudinal_stiffness", "motion_resistance"), 0.10, 0.02),
+    "resistance 0.02, C_x 30 %": (("longitudinal_stiffness", "motion_resistance"), 0.30, 0.02),
+}
 
 
 def consider_markdown(rows: Sequence[RunFigures]) -> str:
-    """The sensitivity section: per scenario and resistance rms, the NEES and the per-quantity e²/σ²."""
+    """The sensitivity section: per scenario and consider setting, the NEES and the per-quantity e²/σ²."""
     table = summarise(rows)
     scenarios = list(dict.fromkeys(r.scenario for r in rows))
     filters = list(dict.fromkeys(r.filter for r in rows))
     lines = [
-        "| scenario | motion resistance | runs | NEES (3) | NEES windows in band | e2/s2 vx | e2/s2 vy | e2/s2 r | "
+        "| scenario | considered | runs | NEES (3) | NEES windows in band | e2/s2 vx | e2/s2 vy | e2/s2 r | "
         "vy within 2 sigma |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
@@ -477,8 +484,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--consider",
         action="store_true",
-        help="instead: the default with the motion resistance not considered and considered at rms 0.01, 0.02 "
-        "(the default) and 0.03, over every scenario; section 'consider-sensitivity'",
+        help="instead: the default with the consider settings of CONSIDER_SETS (none, the resistance, with the "
+        "longitudinal stiffness at 5, 10, 30 %%); section 'consider-sensitivity'",
     )
     parser.add_argument(
         "--tune",
