@@ -55,7 +55,9 @@ def test_live_node_tracks_the_truth(rclpy_context, bag):
         assert all(math.isfinite(v) for v in numeric_fields(odom).values())
         assert all(math.isfinite(v) for v in state.tire_sideslip)
         assert min(state.vx_variance, state.vy_variance, state.yaw_rate_variance, state.body_sideslip_variance) >= 0
-        assert state.fading_factor >= 1.0 and state.noise_scale >= 1.0
+        # Fading >= 1; the noise scale is 1 + K_q mean|alpha| (an_stukf) or the innovation-matched Q scale of
+        # the default filter, which shrinks Q as well as grows it.
+        assert state.fading_factor >= 1.0 and state.noise_scale > 0.0
         assert odom.twist.twist.linear.x == state.vx and odom.twist.covariance[0] == state.vx_variance
         if state.icr_valid:
             assert abs(state.yaw_rate) > 0.0
