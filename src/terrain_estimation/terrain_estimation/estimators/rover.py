@@ -163,6 +163,7 @@ from terrain_estimation.models.terrain_response import (
     PolynomialModel2D,
     ValidityRegion,
     coefficient_count,
+    fit_polynomial_2d,
     polynomial_exponents,
 )
 from terrain_estimation.models.terrain_response_error import (
@@ -1745,22 +1746,12 @@ class TerrainResponseAccumulator:
         w_tau = 1.0 / np.maximum(weights[:, 3], 1e-12) if cfg.weighted else None
         blocks = cfg.validation_blocks
         try:
-            dp = validated_fit(
-                slip, load, pull, cfg.order, groups=stamps, weights=w_dp, max_blocks=blocks, sample_variances=var[:, 2]
-            )
-            tau = validated_fit(
-                slip,
-                load,
-                torque,
-                cfg.order,
-                groups=stamps,
-                weights=w_tau,
-                max_blocks=blocks,
-                sample_variances=var[:, 3],
-            )
             # Errors in the variables: a sample sits at the estimated (i, W), so the errors of slip and load
-            # reach the model through its slopes (τ_R and DP are steep in slip); refit for the stated error
-            # with var_y + (∂y/∂i)² var_i + (∂y/∂W)² var_W (the coefficients are the same, issue 21).
+            # reach the model through its slopes (τ_R and DP are steep in slip); the stated error uses
+            # var_y + (∂y/∂i)² var_i + (∂y/∂W)² var_W, the slopes those of the plain least-squares fit (the
+            # validated fit's coefficients are the same, issue 21).
+            dp_slopes = fit_polynomial_2d(slip, load, pull, cfg.order, w_dp).model
+            tau_slopes = fit_polynomial_2d(slip, load, torque, cfg.order, w_tau).model
             dp = validated_fit(
                 slip,
                 load,
@@ -1769,7 +1760,7 @@ class TerrainResponseAccumulator:
                 groups=stamps,
                 weights=w_dp,
                 max_blocks=blocks,
-                sample_variances=_in_variables(dp.model, slip, load, var[:, 2], var[:, 0], var[:, 1]),
+                sample_variances=_in_variables(dp_slopes, slip, load, var[:, 2], var[:, 0], var[:, 1]),
             )
             tau = validated_fit(
                 slip,
@@ -1779,7 +1770,7 @@ class TerrainResponseAccumulator:
                 groups=stamps,
                 weights=w_tau,
                 max_blocks=blocks,
-                sample_variances=_in_variables(tau.model, slip, load, var[:, 3], var[:, 0], var[:, 1]),
+                sample_variances=_in_variables(tau_slopes, slip, load, var[:, 3], var[:, 0], var[:, 1]),
             )
         except ValueError:
             return None
