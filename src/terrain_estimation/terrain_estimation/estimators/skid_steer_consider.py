@@ -12,8 +12,9 @@ model). On the independent truth plant the unscaled covariance claims a
 
 Estimating such parameters does not help where they are not observable:
 as states (or Schmidt "consider" states inside the sigma-point set) they
-wander with the model error and bias the motion states further (measured:
-RMS ``v_x`` error 5–20× the nominal filter's). Here they are *considered*
+wander with the model error and bias the motion states further (in
+development runs on the truth plant, not kept on the results page: RMS
+``v_x`` error 5–20× the nominal filter's). Here they are *considered*
 in the classical sense (Schmidt 1966; Tapley, Schutz & Born, *Statistical
 Orbit Determination*, 6.3; Simon, *Optimal State Estimation*, 7.6): the
 filter's estimate is left as it is, and the sensitivity of its error to each
@@ -46,7 +47,12 @@ from typing import Any
 import numpy as np
 
 from terrain_estimation.filters.base import Array
-from terrain_estimation.models.skid_steer_scales import RESISTANCE_NAME, STATE_NAMES, TireScaleConfig
+from terrain_estimation.models.skid_steer_scales import (
+    RESISTANCE_NAME,
+    STATE_NAMES,
+    TireScaleConfig,
+    _ScaledModelBase,
+)
 
 __all__ = ["CONSIDER_NAMES", "ConsiderConfig", "ConsiderCovariance"]
 
@@ -116,7 +122,7 @@ class ConsiderCovariance:
         self.config = config
         self.model = model
         self.augmented = augmented
-        extra = augmented.scales.extra
+        extra = augmented.scales.states
         self.considered = tuple(p for p in config.parameters if p not in filter_states)
         n_s = 3 + len(filter_states)
         self._s = np.array([0, 1, 2, *(3 + extra.index(p) for p in filter_states)], dtype=int)
@@ -142,10 +148,13 @@ class ConsiderCovariance:
         kind = (
             estimator_config.model if estimator_config.model.endswith("_scales") else estimator_config.model + "_scales"
         )
-        augmented = replace(estimator_config, model=kind, tire_scales=scales).make_model()
-        if hasattr(model, "yaw_moment") and augmented.yaw_moment != model.yaw_moment:
-            augmented.yaw_moment = model.yaw_moment
-            augmented._r_sqrt = np.asarray(model.measurement_noise_sqrt(), dtype=float)
+        # The same measurement as the filter's (a kinematic model chooses its yaw-moment row by its states).
+        augmented = replace(estimator_config, model=kind, tire_scales=scales).make_model(
+            yaw_moment=getattr(model, "yaw_moment", None)
+        )
+        # The filter's nominal model serves the augmented one: the per-step terms (loads, rolling speeds) of an
+        # input are then computed once per step, by whichever evaluates them first.
+        augmented.base = model.base if isinstance(model, _ScaledModelBase) else model
         return cls(config, model, augmented, filter_states)
 
     @property

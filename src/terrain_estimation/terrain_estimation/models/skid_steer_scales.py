@@ -140,14 +140,9 @@ class TireScaleConfig:
             )
 
     @property
-    def extra(self) -> tuple[str, ...]:
-        """The added states in state order (:data:`STATE_NAMES`): :attr:`states`."""
-        return self.states
-
-    @property
     def count(self) -> int:
         """Number of added states (log-scales and the resistance coefficient)."""
-        return len(self.extra)
+        return len(self.states)
 
     @property
     def scale_count(self) -> int:
