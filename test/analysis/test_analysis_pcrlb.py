@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from terrain_estimation.analysis import DEFAULT_P0_DIAG, pcrlb, pcrlb_quarter_car, quarter_car_truth
+from terrain_estimation.analysis.pcrlb import DEFAULT_P0_DIAG, pcrlb, pcrlb_quarter_car, quarter_car_truth
 from terrain_estimation.filters import ExtendedKalmanFilter, KalmanFilter, SquareRootCubatureKalmanFilter
 from terrain_estimation.models.quarter_car import QuarterCarModel
 

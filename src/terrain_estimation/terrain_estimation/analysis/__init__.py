@@ -1,26 +1,12 @@
-"""Offline analysis of the estimators: performance bounds (numpy/scipy only).
+"""Analysis of the estimators' statistics (numpy/scipy only).
 
-* :func:`pcrlb` — posterior Cramér–Rao lower bound (Tichavský et al. 1998) of
-  any :class:`~terrain_estimation.filters.base.JacobianModel` along given truth
-  trajectories (module ``pcrlb``).
-* :func:`pcrlb_quarter_car` — the same for the quarter car, truth simulated
-  by ``vehicle_sim``, reported as a bound on the soil stiffness k_s.
+* :mod:`~terrain_estimation.analysis.consistency` — NEES/NIS and e²/σ²
+  statistics with effective sample counts; the nodes' diagnostics use it
+  (core layer).
+* :mod:`~terrain_estimation.analysis.pcrlb` — posterior Cramér–Rao lower
+  bound (Tichavský et al. 1998) of any
+  :class:`~terrain_estimation.filters.base.JacobianModel`, and the quarter
+  car's, whose truth is simulated by ``vehicle_sim`` (offline analysis layer:
+  import it as ``terrain_estimation.analysis.pcrlb``; this package does not
+  re-export it, so that the core imports without the simulator).
 """
-
-from terrain_estimation.analysis.pcrlb import (
-    DEFAULT_P0_DIAG,
-    PcrlbResult,
-    QuarterCarPcrlb,
-    pcrlb,
-    pcrlb_quarter_car,
-    quarter_car_truth,
-)
-
-__all__ = [
-    "DEFAULT_P0_DIAG",
-    "PcrlbResult",
-    "QuarterCarPcrlb",
-    "pcrlb",
-    "pcrlb_quarter_car",
-    "quarter_car_truth",
-]
