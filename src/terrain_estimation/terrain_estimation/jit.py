@@ -23,12 +23,19 @@ __all__ = ["compiled"]
 _uncached = False  # numba found no place for its cache in this process
 
 
-def compiled(fn: Callable[..., Any]) -> Any:
-    """``njit(cache=True)(fn)``, or ``njit(fn)`` (with one warning per process) where numba has no cache location."""
+def compiled(fn: Callable[..., Any] | None = None, **options: Any) -> Any:
+    """``njit(cache=True, **options)(fn)``, or ``njit(**options)(fn)`` (with one warning per process) where numba
+    has no cache location.
+
+    Used bare (``@compiled``) or with numba's options (``@compiled(error_model="numpy")``: a float division by
+    zero gives inf or NaN as in numpy instead of raising, and the division needs no zero test).
+    """
+    if fn is None:
+        return lambda f: compiled(f, **options)
     global _uncached
     if not _uncached:
         try:
-            return njit(cache=True)(fn)
+            return njit(cache=True, **options)(fn)
         except RuntimeError as exc:
             _uncached = True
             warnings.warn(
@@ -38,4 +45,4 @@ def compiled(fn: Callable[..., Any]) -> Any:
                 RuntimeWarning,
                 stacklevel=2,
             )
-    return njit(fn)
+    return njit(**options)(fn)

@@ -124,12 +124,13 @@ from typing import Any
 
 import numpy as np
 
+from terrain_estimation.estimators.skid_steer_compiled import STATUS_OK, CompiledSkidSteerStep, warm_up
 from terrain_estimation.estimators.skid_steer_config import MODELS, SkidSteerEstimatorConfig
 from terrain_estimation.estimators.skid_steer_consider import ConsiderCovariance
 from terrain_estimation.estimators.skid_steer_odometry import DeadReckoning
 from terrain_estimation.estimators.skid_steer_wheels import WheelSpeedBuffer
 from terrain_estimation.estimators.skid_steer_zupt import StationaryDetector, zero_velocity_update
-from terrain_estimation.filters.an_stukf import AdaptiveStrongTrackingUKF
+from terrain_estimation.filters.an_stukf import AdaptiveStrongTrackingUKF, AnStukfResult
 from terrain_estimation.filters.base import Array, GaussianState, UpdateInfo
 from terrain_estimation.filters.faults import DivergenceMonitor
 from terrain_estimation.models.skid_steer import CONTRACT_AXLES, axle_count, axle_positions
@@ -283,6 +284,18 @@ class SkidSteerEstimator:
         self._speed_floor_sq = cfg.vehicle.rolling_speed_floor**2
         self._min_sideslip_speed_sq = cfg.min_sideslip_speed**2
         self._contract_map = _contract_mapping(cfg)
+        # The compiled filter + consider step (estimators.skid_steer_compiled) where it applies: the
+        # "adaptive" filter over a brush model. It runs while ``filter`` and ``model`` are the ones it was
+        # built for and ``use_compiled`` is True; the Python step remains the reference and runs otherwise
+        # (and for any step the compiled one hands back).
+        self._compiled = (
+            None if self._kinematic else CompiledSkidSteerStep.for_estimator(self.filter, self.model, self._consider)
+        )
+        self._compiled_filter = self.filter
+        #: Run the compiled step where it applies (False: the Python step only, the reference path).
+        self.use_compiled = self._compiled is not None
+        if self._compiled is not None:
+            warm_up(self._compiled)
         self.reset()
 
     # -- public API ---------------------------------------------------------------
@@ -313,6 +326,7 @@ class SkidSteerEstimator:
         div = cfg.divergence
         self._monitor = DivergenceMonitor(div) if div is not None else None
         self._limit_fault: str | None = None
+        self._compiled_psi: tuple[Array, Array] | None = None
         self._limit_fault_until = -math.inf
 
     @property
@@ -324,6 +338,11 @@ class SkidSteerEstimator:
         """The health counters by :class:`SkidSteerCounters` field name, in field order: a read-only
         view of the live counts (until :meth:`reset`), cheaper than the :attr:`counters` snapshot."""
         return MappingProxyType(self._c)
+
+    @property
+    def compiled_available(self) -> bool:
+        """This configuration has a compiled filter step (:mod:`.skid_steer_compiled`; ``use_compiled``)."""
+        return self._compiled is not None
 
     @property
     def wheel_speed_period_s(self) -> float | None:
@@ -535,16 +554,30 @@ class SkidSteerEstimator:
         self._t_prev = t
         self._c["steps"] += 1
         prev = self._state
+        fast = self._compiled
+        compiled = None
+        u: Any = None
         if self._kinematic:
             u = self._model_input(wl, wr, a_prev, a_raw, (float(z[2]) - self._gyro_prev) / dt)
             if self.model.measurement_dim == 4:  # the yaw-moment pseudo-measurement: z = [a_x, a_y, r, 0]
                 z = np.append(z, 0.0)
-        else:
+        elif (
+            fast is not None
+            and self.use_compiled
+            and self.filter is self._compiled_filter
+            and self.model is fast.model
+            and math.isfinite(a_prev[0])
+            and math.isfinite(a_prev[1])  # what SkidSteerInput checks (wl, wr are finite): it is built if needed
+        ):
+            compiled = self._compiled_step(fast, prev, z, wl, wr, a_prev, dt)
+        if u is None and (compiled is None or self._consider is not None and self._compiled_psi is None):
             u = self._model_input(wl, wr, a_prev, a_raw, 0.0)
         failure: str | None = None
         try:
             filt = self.filter
-            if type(filt) is AdaptiveStrongTrackingUKF:
+            if compiled is not None:
+                post, res = compiled
+            elif type(filt) is AdaptiveStrongTrackingUKF:
                 # step's own checks hold here: prev.x is the filter's (n,) float mean, z the finite
                 # float array add_imu built (the model's output is still checked).
                 post, res = filt._step(prev, prev.x, z, self.model, u, dt, self._memory)
@@ -587,10 +620,13 @@ class SkidSteerEstimator:
         self._state = post
         self._memory = res.memory
         if self._consider is not None:
-            try:
-                self._consider.step(prev.x, post.x, res, post.P, u, dt)
-            except ValueError:
-                self._consider.reset()
+            if compiled is not None and self._compiled_psi is not None:
+                self._consider.set_sensitivity(*self._compiled_psi)  # computed with the filter step
+            else:
+                try:
+                    self._consider.step(prev.x, post.x, res, post.P, u, dt)
+                except ValueError:
+                    self._consider.reset()
         if self._stationary and self.config.zupt.enabled:
             self._state = zero_velocity_update(post, self._detector.mean_yaw_rate(), self.config.zupt)
             self._c["zero_velocity_updates"] += 1
@@ -615,6 +651,53 @@ class SkidSteerEstimator:
             accepted=res.accepted,
             init=False,
         )
+
+    def _compiled_step(
+        self,
+        fast: CompiledSkidSteerStep,
+        prev: GaussianState,
+        z: Array,
+        wl: float,
+        wr: float,
+        a_prev: tuple[float, float],
+        dt: float,
+    ) -> tuple[GaussianState, AnStukfResult] | None:
+        """The filter step (and the consider step, kept in ``_compiled_psi``) in one compiled call; None when
+        the compiled step hands this step back to the Python one."""
+        consider = self._consider
+        mu = self.config.vehicle.friction if self._friction is None else float(self._friction)
+        out = fast.run(
+            _writable(prev.x),
+            _writable(prev.P),
+            self._memory,
+            z,
+            wl,
+            wr,
+            a_prev[0],
+            a_prev[1],
+            mu,
+            dt,
+            None if consider is None else _writable(consider.psi),
+        )
+        status, c_status, accepted, lam, noise_scale, nis, buf = out
+        if status != STATUS_OK:
+            return None
+        x, P, nu, P_zz, P_prior, P_xz, memory, r_scale, psi, cov = fast.unpack(buf)
+        self._compiled_psi = (psi, cov) if c_status == STATUS_OK and consider is not None else None
+        res = AnStukfResult(
+            fading_factor=lam,
+            noise_scale=noise_scale,
+            mean_abs_sideslip=0.0,
+            nis=nis,
+            innovation=nu,
+            innovation_cov=P_zz,
+            accepted=accepted,
+            memory=memory,
+            measurement_noise_scale=r_scale,
+            prior_cov=P_prior,
+            cross_cov=P_xz,
+        )
+        return GaussianState(x=x, P=P), res
 
     def _odometry_state(self, wl: float, wr: float, yaw_rate: float) -> Array:
         """``[encoder speed, 0, measured yaw rate]``, clipped to the envelope (a (re)start's mean)."""
@@ -735,6 +818,13 @@ class SkidSteerEstimator:
         )
 
 
+def _writable(a: Any) -> Array:
+    """``a`` as a writable C-contiguous float64 array (itself when it is one): the compiled step's argument type."""
+    if type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable:
+        return a
+    return np.array(a, dtype=np.float64, order="C")
+
+
 def _contract_mapping(cfg: SkidSteerEstimatorConfig) -> tuple[int, int, int, int, float] | None:
     """``(N, k, k + 1, N − 1, w)`` of :func:`~terrain_estimation.models.skid_steer.contract_tire_sideslip`
     for N ≠ 3 axles (None for three: the six wheels as they are)."""
@@ -761,14 +851,15 @@ def _body_sideslip_variance(vx: float, vy: float, P: Array, speed_floor_sq: floa
     of ``β = atan2(vy, vx)``, capped at π².
 
     ``∂β/∂(vx, vy) = (−vy, vx)/(vx² + vy²)``; the floor (the rolling-speed floor squared) keeps the
-    variance finite at rest, the cap is β's whole range (2π). On the state's floats: Python's
-    ``float ** 2`` and numpy's float64 ``** 2`` are the same libm ``pow`` (not ``x * x``, which
-    rounds differently now and then), and ``−vy/v²`` is ``(−vy)/v²`` exactly, so these are the
-    floats of the array form (a test compares), overflow included.
+    variance finite at rest, the cap is β's whole range (2π). In scalars on the state's floats (the
+    array form ``jac @ P[:2, :2] @ jac`` cost more than the arithmetic once per IMU sample; BLAS may
+    fuse its multiply-adds, so the two agree to rounding, a test compares). Python's ``float ** 2``
+    and numpy's float64 ``** 2`` are the same libm ``pow``; overflow gives inf as numpy's does.
     """
     try:
         v2 = max(vx**2 + vy**2, speed_floor_sq)
     except OverflowError:  # Python's float ** raises where numpy's gives inf (and warns): numpy's then
         v2 = max(float(np.float64(vx) ** 2 + np.float64(vy) ** 2), speed_floor_sq)
-    jac = np.array([-vy / v2, vx / v2])
-    return v2, min(float(jac @ P[:2, :2] @ jac), math.pi**2)
+    j0, j1 = -vy / v2, vx / v2
+    p00, p01, p10, p11 = float(P[0, 0]), float(P[0, 1]), float(P[1, 0]), float(P[1, 1])
+    return v2, min((j0 * p00 + j1 * p10) * j0 + (j0 * p01 + j1 * p11) * j1, math.pi**2)

@@ -132,6 +132,7 @@ class ConsiderCovariance:
         variances = [config.resistance_rms**2 if p == RESISTANCE_NAME else config.scale_std**2 for p in self.considered]
         self._C = np.diag(variances)
         self.psi = np.zeros((n_s, len(self.considered)))
+        self._cov: Array | None = None  # Ψ C Ψᵀ of the current Ψ when known (set_sensitivity)
 
     @classmethod
     def for_estimator(cls, config: ConsiderConfig, estimator_config: Any, model: Any) -> ConsiderCovariance | None:
@@ -164,7 +165,15 @@ class ConsiderCovariance:
 
     def reset(self) -> None:
         """Forget the sensitivity: a (re)start, or a zero-velocity update."""
-        self.psi[:] = 0.0
+        self.psi = np.zeros(self.psi.shape)
+        self._cov = None
+
+    def set_sensitivity(self, psi: Array, covariance: Array) -> None:
+        """Take ``Ψ`` and its ``Ψ C Ψᵀ`` as computed elsewhere for this step (the compiled step of
+        :mod:`~terrain_estimation.estimators.skid_steer_compiled`, the same arithmetic as :meth:`step` and
+        :meth:`covariance`)."""
+        self.psi = psi
+        self._cov = covariance
 
     def _directional(self, fn: Any, x: Array, directions: Array) -> Array:
         """Forward-difference derivatives ``(rows, k)`` of ``fn`` (``f`` or ``h`` over points) at the filter
@@ -215,9 +224,12 @@ class ConsiderCovariance:
         if not np.isfinite(psi).all():
             raise ValueError("consider covariance: the sensitivity is not finite")
         self.psi = psi
+        self._cov = None
 
     def covariance(self) -> Array:
         """``Ψ C Ψᵀ`` ``(n_s, n_s)``: what the considered parameters add to the filter's covariance."""
+        if self._cov is not None:
+            return self._cov
         a = self.psi * np.sqrt(np.diag(self._C))
         m = a @ a.T
         return 0.5 * (m + m.T)  # exactly symmetric (the published covariances are checked for it)

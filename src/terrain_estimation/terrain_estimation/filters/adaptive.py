@@ -46,9 +46,9 @@ from functools import lru_cache
 from typing import Any, Literal
 
 import numpy as np
-from scipy.stats import chi2
 
 from .base import Array, GaussianState, StateSpaceModel
+from .chi2 import chi2_ppf
 from .kalman import check_measurement
 from .sigma_points import cholesky, solve_lower
 from .ukf import SigmaPointKalmanFilter
@@ -160,7 +160,7 @@ def nis_threshold(p: int, probability: float) -> float:
         raise ValueError(f"p must be a positive integer, got {p!r}")
     if not (0.0 < probability < 1.0):
         raise ValueError(f"probability must be in (0, 1), got {probability}")
-    return float(chi2.ppf(probability, int(p)))
+    return chi2_ppf(probability, int(p))
 
 
 def whitened_innovation_is_consistent(innovation: Array, P_zz: Array, probability: float) -> bool:

@@ -62,9 +62,9 @@ from functools import lru_cache
 from typing import Any, Literal
 
 import numpy as np
-from scipy.stats import chi2
 
 from .base import Array, SqrtGaussianState, UpdateInfo
+from .chi2 import chi2_ppf
 
 __all__ = [
     "DivergenceConfig",
@@ -161,8 +161,8 @@ class DivergenceCheck:
 @lru_cache(maxsize=256)
 def nis_band(dof: int, count: int, probability: float) -> tuple[float, float]:
     """Two-sided χ² band of the mean of ``count`` NIS values totalling ``dof`` degrees of freedom."""
-    lo = float(chi2.ppf(0.5 * (1.0 - probability), dof)) / count
-    hi = float(chi2.ppf(0.5 * (1.0 + probability), dof)) / count
+    lo = chi2_ppf(0.5 * (1.0 - probability), dof) / count
+    hi = chi2_ppf(0.5 * (1.0 + probability), dof) / count
     return lo, hi
 
 

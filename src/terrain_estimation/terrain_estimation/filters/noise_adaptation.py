@@ -120,10 +120,10 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from scipy.stats import chi2
 
 from .adaptive import _hqh, whiten
 from .base import Array
+from .chi2 import chi2_cdf, chi2_ppf, chi2_sf
 from .sigma_points import cholesky, solve_lower
 
 __all__ = [
@@ -324,8 +324,8 @@ def huber_clip(p: int, probability: float) -> tuple[float, float]:
     if int(p) != p or p < 1:
         raise ValueError(f"p must be a positive integer, got {p!r}")
     _check_unit_interval("probability", probability)
-    c2 = float(chi2.ppf(probability, p))
-    kappa = float(chi2.cdf(c2, p + 2)) + c2 / p * float(chi2.sf(c2, p))
+    c2 = chi2_ppf(probability, p)
+    kappa = chi2_cdf(c2, p + 2) + c2 / p * chi2_sf(c2, p)
     return c2, kappa
 
 

@@ -33,8 +33,6 @@ from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg.blas import dtrsm
-from scipy.linalg.lapack import dgeqrf as _dgeqrf
 
 from .base import Array, check_square, check_vector
 
@@ -242,6 +240,30 @@ def _tria_rows(top: Array, bottom: Array) -> Array:
     return _lower_factor(rows, overwrite=True)
 
 
+# scipy's BLAS/LAPACK wrappers, imported on first use: ``scipy.linalg`` takes about 0.2 s to import, and a
+# filter run by a compiled step (the skid steer's) may never call them (issue 23: start-up).
+_DTRSM: Any = None
+_DGEQRF: Any = None
+
+
+def _dtrsm() -> Any:
+    global _DTRSM
+    if _DTRSM is None:
+        from scipy.linalg.blas import dtrsm
+
+        _DTRSM = dtrsm
+    return _DTRSM
+
+
+def _dgeqrf(*args: Any, **kwargs: Any) -> Any:
+    global _DGEQRF
+    if _DGEQRF is None:
+        from scipy.linalg.lapack import dgeqrf
+
+        _DGEQRF = dgeqrf
+    return _DGEQRF(*args, **kwargs)
+
+
 def _lower_factor(rows: Array, *, overwrite: bool) -> Array:
     """The factor of :func:`tria` from ``Aᵀ`` ``(k ≥ n, n)`` (overwritten if ``overwrite`` and Fortran-ordered)."""
     n = rows.shape[1]
@@ -350,6 +372,7 @@ def solve_lower(L: Array, B: Array, *, transpose: bool = False) -> Array:
     Returns:
         ``X`` with the shape of ``B``.
     """
+    dtrsm = _DTRSM if _DTRSM is not None else _dtrsm()
     if B.ndim == 1:
         return cast(Array, dtrsm(1.0, L, B[:, None], lower=1, trans_a=int(transpose))[:, 0])
     return cast(Array, dtrsm(1.0, L, B, lower=1, trans_a=int(transpose)))

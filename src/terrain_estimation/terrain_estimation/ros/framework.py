@@ -71,7 +71,6 @@ from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 
-from terrain_estimation.analysis.consistency import chi2_mean_band, integrated_autocorrelation_time
 from terrain_estimation.filters.faults import DivergenceConfig
 from terrain_estimation.params import ParameterError, ParamSpec, ParamValue
 from terrain_estimation.ros import diagnostics as diag
@@ -559,6 +558,10 @@ class EstimatorNode(_ParamsMixin, Node):
         self.values = declare_specs(self, all_specs)
         self._make_adapter = make_adapter
         self.adapter = make_adapter(self.values, self.get_namespace())
+        # The NIS check of the diagnostics (scipy.special) is loaded now, not at the first diagnostics
+        # message, where it would stall the executor once; the offline tool, which has none, never loads it.
+        import terrain_estimation.analysis.consistency  # noqa: F401
+
         self._judged = self.adapter if isinstance(self.adapter, JudgedInputs) else None
         self.messages_handled = 0
         self.published: dict[str, int] = {}  # output key -> messages published
@@ -872,6 +875,10 @@ class EstimatorNode(_ParamsMixin, Node):
             # coloured by the model error, and n correlated values carry only n/tau independent ones (tau: the
             # window's integrated autocorrelation time, Geyer's initial positive sequence); a band of n would
             # WARN on every healthy run. A fault (a sensor offset, a stuck input) moves the mean by far more.
+            # Imported here, at the first diagnostics with NIS samples: the analysis package pulls scipy.special
+            # and scipy.linalg in, which the offline replay and a node's start-up need not wait for (issue 23).
+            from terrain_estimation.analysis.consistency import chi2_mean_band, integrated_autocorrelation_time
+
             tau = integrated_autocorrelation_time(list(health.nis)) if n >= 8 else 1.0
             lo, hi = chi2_mean_band(health.nis_dof, n / tau, p)
             values.update(nis_mean=mean_nis, nis_band_low=lo, nis_band_high=hi, nis_window=n, nis_tau=tau)

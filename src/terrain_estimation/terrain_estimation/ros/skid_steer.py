@@ -340,6 +340,7 @@ class SkidSteerAdapter:
             ),
         )
         self._waits = self.config.wheel_speed_wait_s > 0.0
+        self._scale_keys = tuple(f"tire_scale.{k}" for k in self.config.scale_states)
         self.outputs: Sequence[TopicSpec] = (
             TopicSpec("odom", "odom", Odometry, "estimate"),
             TopicSpec(
@@ -351,6 +352,14 @@ class SkidSteerAdapter:
             ),
         )
         self.reset()
+
+    def set_compiled(self, enabled: bool) -> None:
+        """Run the estimator's compiled filter step (True, where it applies) or the Python reference step.
+
+        The two give the same estimates to rounding (``test/test_skid_steer_compiled.py``); the switch is for
+        the benchmark's side-by-side figures (``terrain_estimation.tools.bench --only skid_replay``).
+        """
+        self.estimator.use_compiled = bool(enabled) and self.estimator.compiled_available
 
     def reset(self) -> None:
         self.estimator.reset()
@@ -376,9 +385,14 @@ class SkidSteerAdapter:
         out: list[tuple[str, Any]] = []
         for e in self._drain():
             if _FAST_MESSAGES:
-                stamp = sec_to_stamp(e.t)  # one per estimate; the state message gets its own copy
-                out.append(("odom", _odom_msg(e, stamp, self.odom_frame, self.base_frame)))
-                out.append(("state", _state_msg(e, _time(stamp.sec, stamp.nanosec), self.base_frame)))
+                # sec_to_stamp's Time (its checks, its rounding), built without the constructor; the state
+                # message gets its own copy.
+                t = e.t
+                if not math.isfinite(t) or t < 0.0:
+                    raise ValueError(f"time {t!r} s cannot be a ROS stamp")
+                sec, nanosec = divmod(round(t * 1e9), 1_000_000_000)
+                out.append(("odom", _odom_msg(e, _time(sec, nanosec), self.odom_frame, self.base_frame)))
+                out.append(("state", _state_msg(e, _time(sec, nanosec), self.base_frame)))
             else:
                 out.append(("odom", estimate_to_odom_msg(e, self.odom_frame, self.base_frame)))
                 out.append(("state", estimate_to_state_msg(e, self.base_frame)))
@@ -421,7 +435,8 @@ class SkidSteerAdapter:
             )
             h.values.update(counts)
             h.values.update(self._wheel_speed_values())
-            h.values.update({f"tire_scale.{k}": v for k, v in self.estimator.tire_scales.items()})
+            # The newest estimate's scales: those of the estimator's current state (estimator.tire_scales).
+            h.values.update(zip(self._scale_keys, last.tire_scales, strict=True))
             if last.stationary:
                 h.status += ", standing still"
         h.errors = divergence_errors(self.estimator.fault, counts["divergences"])

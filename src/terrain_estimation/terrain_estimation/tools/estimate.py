@@ -32,10 +32,11 @@ a required topic missing), a bad parameter, an output path that exists (see
 from __future__ import annotations
 
 import argparse
+import gc
 import math
 import sys
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -88,11 +89,17 @@ def numeric_fields(msg: Any, prefix: str = "") -> dict[str, float]:
 
 @dataclass
 class EstimationRun:
-    """What an offline run produced (messages in output order)."""
+    """What an offline run produced (messages in output order).
+
+    ``truth`` (a simulator's ``ground_truth/<topic>`` messages, by estimate topic) is read from the bag
+    on first access, not during the run: only a summary against ground truth needs it, and decoding it
+    during the replay cost as much as decoding the inputs (undecodable truth messages are counted in
+    ``rejected`` when it is read).
+    """
 
     outputs: list[tuple[str, Any, int]] = field(default_factory=list)  # (topic, msg, log time ns)
     inputs_read: int = 0
-    truth: dict[str, list[Any]] = field(default_factory=dict)  # estimate topic -> truth messages
+    truth_loader: Callable[[EstimationRun], dict[str, list[Any]]] | None = field(default=None, repr=False)
     truth_fields: dict[str, tuple[str, ...]] = field(default_factory=dict)  # estimate topic -> compared fields
     rejected: dict[str, int] = field(default_factory=dict)  # input check reason -> messages dropped
     accepted: int = 0  # input messages that passed the checks (or all read, without checks)
@@ -107,6 +114,19 @@ class EstimationRun:
     def messages(self, topic: str) -> list[Any]:
         return [m for t, m, _ in self.outputs if t == topic]
 
+    @property
+    def truth(self) -> dict[str, list[Any]]:
+        """Estimate topic -> its ground-truth messages (read from the bag on first access)."""
+        loaded: dict[str, list[Any]] | None = self.__dict__.get("_truth")
+        if loaded is None:
+            loaded = self.truth_loader(self) if self.truth_loader is not None else {}
+            self.__dict__["_truth"] = loaded
+        return loaded
+
+    @truth.setter
+    def truth(self, value: dict[str, list[Any]]) -> None:
+        self.__dict__["_truth"] = value
+
 
 def run_adapter(
     adapter: Any,
@@ -115,8 +135,13 @@ def run_adapter(
     *,
     progress: bool = False,
     values: Mapping[str, Any] | None = None,
+    previous: bool = False,
 ) -> EstimationRun:
     """Feed ``adapter`` every input message of ``bag``, in recorded order.
+
+    The ground-truth topics are read when ``run.truth`` is first asked for, and the garbage collector
+    pauses during the replay (``previous``: the truth decoded during the run and the collector running,
+    as the previous path did, for the benchmark's side-by-side figures).
 
     With the node's parameter ``values`` the messages pass the same input checks
     as in the live node (:class:`~terrain_estimation.ros.validation.InputGuard`;
@@ -139,7 +164,6 @@ def run_adapter(
     for s in adapter.outputs:
         types[topic_name(namespace, "ground_truth/" + s.topic)] = msgtype_name(s.msg_type)
     guard = InputGuard(adapter.inputs, values) if values is not None else None
-    judged = isinstance(adapter, JudgedInputs)
 
     def undecodable(topic: str, _log_time_ns: int, exc: BaseException) -> None:
         # as the live node does: the sample is dropped, counted, and the run goes on
@@ -149,11 +173,56 @@ def run_adapter(
         reason = f"{topic}: bytes do not decode as {types.get(topic, 'its type')}"
         run.rejected[reason] = run.rejected.get(reason, 0) + 1
 
+    def load_truth(run: EstimationRun) -> dict[str, list[Any]]:
+        truth: dict[str, list[Any]] = {}
+        for item in read_bag(bag, list(truth_topics), types=types, on_undecodable=undecodable):
+            truth.setdefault(truth_topics[item.topic], []).append(item.msg)
+        return truth
+
+    run.truth_loader = load_truth
+    # Every topic's type is checked (``types`` holds the truth topics too) before any message is read.
+    # ``previous``: the truth decoded in the same pass, as the previous path did (benchmarks).
+    read = list(inputs) + (list(truth_topics) if previous else [])
+    eager: dict[str, list[Any]] = {}
+    # The cyclic garbage collector is paused for the replay (not on the previous path): the run keeps every
+    # output message, and the collector's full passes traverse them again and again (a fifth of the CPU of
+    # a 60 s skid-steer replay). The replay's objects (messages, estimates) hold no reference cycles;
+    # whatever cycles it makes (an exception's traceback) are collected when the collector resumes.
+    collecting = gc.isenabled()
+    if not previous:
+        gc.disable()
+    try:
+        _replay(run, adapter, bag, read, types, undecodable, inputs, truth_topics, outputs, guard, eager, progress)
+    finally:
+        if collecting:
+            gc.enable()
+    if previous:
+        run.truth = eager
+    return run
+
+
+def _replay(
+    run: EstimationRun,
+    adapter: Any,
+    bag: str | Path,
+    read: list[str],
+    types: Mapping[str, str],
+    undecodable: Callable[[str, int, BaseException], None],
+    inputs: Mapping[str, str],
+    truth_topics: Mapping[str, str],
+    outputs: Mapping[str, str],
+    guard: InputGuard | None,
+    eager: dict[str, list[Any]],
+    progress: bool,
+) -> None:
+    """The message loop of :func:`run_adapter`."""
+    eager_truth = len(read) > len(inputs)
+    judged = isinstance(adapter, JudgedInputs)
     started = time.monotonic()
     last_report = started
-    for item in read_bag(bag, list(inputs) + list(truth_topics), types=types, on_undecodable=undecodable):
-        if item.topic in truth_topics:
-            run.truth.setdefault(truth_topics[item.topic], []).append(item.msg)
+    for item in read_bag(bag, read, types=types, on_undecodable=undecodable):
+        if eager_truth and item.topic in truth_topics:
+            eager.setdefault(truth_topics[item.topic], []).append(item.msg)
             continue
         run.inputs_read += 1
         run.topics_read[item.topic] = run.topics_read.get(item.topic, 0) + 1
@@ -182,7 +251,6 @@ def run_adapter(
                 f"  ... {run.inputs_read} messages, {len(run.outputs)} estimates, {last_report - started:.0f} s",
                 file=sys.stderr,
             )
-    return run
 
 
 def estimate_bag(
@@ -193,13 +261,24 @@ def estimate_bag(
     config: str | Path | None = None,
     overrides: Mapping[str, Any] | None = None,
     progress: bool = False,
+    reference: bool = False,
 ) -> EstimationRun:
-    """Run ``vehicle``'s estimator over ``bag`` (see :func:`run_adapter`)."""
+    """Run ``vehicle``'s estimator over ``bag`` (see :func:`run_adapter`).
+
+    Args:
+        reference: the previous path, for benchmarks and tests that compare the two: the reference
+            (Python) filter step where an adapter also has a compiled one (``adapter.set_compiled(False)``:
+            the skid steer's), the ground truth decoded during the run, the garbage collector running
+            (:func:`run_adapter`). The estimates agree to rounding.
+    """
     entry = get_vehicle(vehicle)
     ns = namespace if namespace is not None else entry.namespace
     values = config_values(entry, config, overrides)
     adapter = entry.make_adapter(values, ns)
-    run = run_adapter(adapter, ns, bag, progress=progress, values=values)
+    set_compiled = getattr(adapter, "set_compiled", None)
+    if reference and callable(set_compiled):
+        set_compiled(False)
+    run = run_adapter(adapter, ns, bag, progress=progress, values=values, previous=reference)
     health = getattr(getattr(adapter, "health", None), "values", {})
     run.divergences = int(health.get("divergences", 0))
     run.limit_resets = int(health.get("limit_resets", 0))
@@ -220,6 +299,31 @@ def config_values(
     Raises:
         ParameterError: an unknown name or invalid value (in the estimator's section, or in ``overrides``).
     """
+    # One parse per process for the same file (path, size and modification time) and overrides: a batch of
+    # bags, or a benchmark, runs many bags with one configuration (the YAML parse costs about 20 ms).
+    file = Path(config) if config is not None else entry.config_path()
+    try:
+        st = file.stat()
+        stamp: tuple[int, int] | None = (st.st_mtime_ns, st.st_size)
+    except OSError:
+        stamp = None
+    key = (entry.name, str(config), stamp, repr(sorted((overrides or {}).items())))
+    cached = _CONFIG_CACHE.get(key)
+    if cached is None:
+        cached = _config_values(entry, config, overrides)
+        if len(_CONFIG_CACHE) > 64:
+            _CONFIG_CACHE.clear()
+        _CONFIG_CACHE[key] = cached
+    return {k: list(v) if isinstance(v, list) else v for k, v in cached.items()}
+
+
+_CONFIG_CACHE: dict[tuple[Any, ...], dict[str, ParamValue]] = {}
+
+
+def _config_values(
+    entry: Any, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None
+) -> dict[str, ParamValue]:
+    """:func:`config_values` without its cache."""
     from terrain_estimation.ros.framework import EstimatorNode
 
     specs = tuple(EstimatorNode.COMMON_SPECS) + tuple(entry.specs)
@@ -297,6 +401,7 @@ def check_usable(run: EstimationRun, bag: str | Path, namespace: str) -> None:
 
 
 def _summary_lines(run: EstimationRun) -> Iterator[str]:
+    truth = run.truth  # read now: its undecodable messages belong to the counts below
     rejected = sum(run.rejected.values())
     yield f"input messages read: {run.inputs_read} ({run.accepted} accepted, {rejected} rejected)"
     for reason, count in sorted(run.rejected.items()):
@@ -319,7 +424,7 @@ def _summary_lines(run: EstimationRun) -> Iterator[str]:
         last = numeric_fields(msgs[-1])
         shown = ", ".join(f"{k}={v:.6g}" for k, v in list(last.items())[:8])
         yield f"  last: {shown}"
-        errs = truth_errors(msgs, run.truth.get(topic, []), run.truth_fields.get(topic, ()))
+        errs = truth_errors(msgs, truth.get(topic, []), run.truth_fields.get(topic, ()))
         for name, (rms, final, rel) in errs.items():
             # A relative error above 1000 % says the truth is near zero (a sideslip on a straight run), not more.
             pct = f"{100 * rel:.2f} %" if rel <= 10.0 else "truth near 0"
