@@ -191,8 +191,11 @@ class ConsiderCovariance:
         """Carry ``Ψ`` over one filter step.
 
         ``F_s Ψ − F_c`` is the derivative of ``f`` along ``[Ψ; −I]`` (one
-        direction per considered parameter, not a full Jacobian), and ``H_c``
-        that of ``h`` along the parameters.
+        direction per considered parameter, not a full Jacobian), taken as
+        minus the forward difference along ``[−Ψ; +I]`` so that every
+        parameter steps up from its nominal value (the motion resistance
+        is bounded below at its nominal 0); ``H_c`` is that of ``h`` along
+        the parameters.
 
         Args:
             x_prev: the previous posterior mean (the prediction's linearisation point).
@@ -206,10 +209,13 @@ class ConsiderCovariance:
             ValueError: a derivative is not finite or the filter's moments are missing (the caller resets).
         """
         k = self.count
+        # Along [−Ψ; +I], negated: the parameters step up, so that one at its lower bound (the motion
+        # resistance, nominally 0 and clipped at 0 in the model) moves; a step down would leave f unchanged
+        # and drop the resistance's effect on the process.
         directions = np.zeros((self._n_aug, k))
-        directions[self._s] = self.psi
-        directions[self._c, np.arange(k)] = -1.0
-        psi = self._directional(lambda pts: self.augmented.f(pts, u, dt), np.asarray(x_prev, dtype=float), directions)
+        directions[self._s] = -self.psi
+        directions[self._c, np.arange(k)] = 1.0
+        psi = -self._directional(lambda pts: self.augmented.f(pts, u, dt), np.asarray(x_prev, dtype=float), directions)
         psi = psi[self._s]
         if result.accepted:
             if result.prior_cov is None or result.cross_cov is None:
