@@ -119,18 +119,28 @@ class DeadReckoning:
         q11 = p11 + b * p12 + b * f12
         # c G Σ̄ Gᵀ, G rows g0 = (Δt cos, −Δt sin, −Δt dy/2), g1 = (Δt sin, Δt cos, Δt dx/2), g2 = (0, 0, Δt).
         w = 0.5 * max(1.0, 2.0 * self.correlation_time_s / dt)  # the factor c and the 1/2 of the mean Σ̄
-        sig = [u + v for u, v in zip(_values(previous_cov), _values(current_cov), strict=True)]
-        g0 = (dt * c, -dt * s, -0.5 * dt * dy)
-        g1 = (dt * s, dt * c, 0.5 * dt * dx)
-        s0 = [sig[0 + k] * g0[0] + sig[3 + k] * g0[1] + sig[6 + k] * g0[2] for k in range(3)]  # (G Σ)_0
-        s1 = [sig[0 + k] * g1[0] + sig[3 + k] * g1[1] + sig[6 + k] * g1[2] for k in range(3)]  # (G Σ)_1
-        s2 = [dt * sig[6 + k] for k in range(3)]  # (G Σ)_2
-        n00 = w * (s0[0] * g0[0] + s0[1] * g0[1] + s0[2] * g0[2])
-        n01 = w * 0.5 * (s0[0] * g1[0] + s0[1] * g1[1] + s0[2] * g1[2] + s1[0] * g0[0] + s1[1] * g0[1] + s1[2] * g0[2])
-        n02 = w * 0.5 * (s0[2] * dt + s2[0] * g0[0] + s2[1] * g0[1] + s2[2] * g0[2])
-        n11 = w * (s1[0] * g1[0] + s1[1] * g1[1] + s1[2] * g1[2])
-        n12 = w * 0.5 * (s1[2] * dt + s2[0] * g1[0] + s2[1] * g1[1] + s2[2] * g1[2])
-        n22 = w * s2[2] * dt
+        a0, a1, a2, a3, a4, a5, a6, a7, a8 = _values(previous_cov)
+        b0, b1, b2, b3, b4, b5, b6, b7, b8 = _values(current_cov)
+        # Σ = previous + current, then G Σ Gᵀ, element by element (the same operations as a loop over k;
+        # written out: this runs once per IMU sample).
+        q0, q1, q2 = a0 + b0, a1 + b1, a2 + b2
+        q3, q4, q5 = a3 + b3, a4 + b4, a5 + b5
+        q6, q7, q8 = a6 + b6, a7 + b7, a8 + b8
+        g00, g01, g02 = dt * c, -dt * s, -0.5 * dt * dy
+        g10, g11, g12 = dt * s, dt * c, 0.5 * dt * dx
+        s00 = q0 * g00 + q3 * g01 + q6 * g02  # (G Σ)_0
+        s01 = q1 * g00 + q4 * g01 + q7 * g02
+        s02 = q2 * g00 + q5 * g01 + q8 * g02
+        s10 = q0 * g10 + q3 * g11 + q6 * g12  # (G Σ)_1
+        s11 = q1 * g10 + q4 * g11 + q7 * g12
+        s12 = q2 * g10 + q5 * g11 + q8 * g12
+        s20, s21, s22 = dt * q6, dt * q7, dt * q8  # (G Σ)_2
+        n00 = w * (s00 * g00 + s01 * g01 + s02 * g02)
+        n01 = w * 0.5 * (s00 * g10 + s01 * g11 + s02 * g12 + s10 * g00 + s11 * g01 + s12 * g02)
+        n02 = w * 0.5 * (s02 * dt + s20 * g00 + s21 * g01 + s22 * g02)
+        n11 = w * (s10 * g10 + s11 * g11 + s12 * g12)
+        n12 = w * 0.5 * (s12 * dt + s20 * g10 + s21 * g11 + s22 * g12)
+        n22 = w * s22 * dt
         r00, r01, r02 = q00 + n00, q01 + n01, f02 + n02
         r11, r12, r22 = q11 + n11, f12 + n12, p22 + n22
         self.covariance_values = (r00, r01, r02, r01, r11, r12, r02, r12, r22)
