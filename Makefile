@@ -83,6 +83,7 @@ reproduce: reproduce-qc reproduce-skid reproduce-rover
 reproduce-qc: setup
 	$(PY) -m terrain_estimation.tools.reproduce_qc --out docs/results --jobs 2
 	$(PY) -m terrain_estimation.tools.qc_consistency --out docs/results/quarter_car.md --jobs 2
+	$(PY) -m terrain_estimation.tools.reproduce_qc_profile_free --seeds 10 --jobs 2 --out docs/results/quarter_car.md
 
 reproduce-skid: setup
 	$(PY) -m terrain_estimation.tools.reproduce_skid --out docs/results --jobs 2

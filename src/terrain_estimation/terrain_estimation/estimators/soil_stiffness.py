@@ -195,6 +195,7 @@ from terrain_estimation.models.quarter_car import (
     QuarterCarParams,
     StepInput,
 )
+from terrain_estimation.models.quarter_car_road import RoadInputParams
 from terrain_estimation.models.soil import SOIL_TABLE, SoilClass, classify_soil
 
 __all__ = [
@@ -203,6 +204,7 @@ __all__ = [
     "EstimatorCounters",
     "SoilStiffnessEstimator",
     "make_filter",
+    "make_estimator",
     "FILTER_CLASSES",
 ]
 
@@ -337,6 +339,11 @@ class SoilStiffnessEstimatorConfig:
             (``counters.divergences``, :attr:`SoilStiffnessEstimator.fault`
             until it is consistent again). None (default) keeps only the
             non-finite recovery of the module docstring.
+        road_input: ``"profile"`` (default: the measured profile drives the
+            model, this class) or ``"stochastic"`` (no profile: the road is
+            ISO 8608 shaped noise, :mod:`.soil_profile_free`; build with
+            :func:`make_estimator`).
+        road: the stochastic road (``road_input = "stochastic"`` only).
     """
 
     vehicle: Literal["quarter_car", "lrv"] = "quarter_car"
@@ -369,8 +376,12 @@ class SoilStiffnessEstimatorConfig:
     max_step_s: float = 0.5
     max_pending: int = 1000
     divergence: DivergenceConfig | None = None
+    road_input: Literal["profile", "stochastic"] = "profile"
+    road: RoadInputParams = field(default_factory=RoadInputParams)
 
     def __post_init__(self) -> None:
+        if self.road_input not in ("profile", "stochastic"):
+            raise ValueError(f"road_input must be 'profile' or 'stochastic', got {self.road_input!r}")
         if self.vehicle not in ("quarter_car", "lrv"):
             raise ValueError(f"vehicle must be 'quarter_car' or 'lrv', got {self.vehicle!r}")
         if self.filter not in FILTER_CLASSES:
@@ -638,6 +649,20 @@ _EPS_T = 1e-9  # stamp comparison tolerance (s): stamps are float conversions
 _HDOT_DEGREE = 5
 _HDOT_MAX_WINDOW_S = 0.1
 _SPEED_SPAN_S = 0.05
+
+
+def make_estimator(config: SoilStiffnessEstimatorConfig | None = None) -> Any:
+    """The estimator ``config.road_input`` selects: :class:`SoilStiffnessEstimator` (profile) or the profile-free one.
+
+    Raises:
+        ValueError: a configuration the selected mode cannot run.
+    """
+    cfg = config if config is not None else SoilStiffnessEstimatorConfig()
+    if cfg.road_input == "stochastic":
+        from terrain_estimation.estimators.soil_profile_free import ProfileFreeSoilStiffnessEstimator
+
+        return ProfileFreeSoilStiffnessEstimator(cfg)
+    return SoilStiffnessEstimator(cfg)
 
 
 class SoilStiffnessEstimator:

@@ -32,10 +32,11 @@ from sensor_msgs.msg import Imu, JointState
 from terrain_estimation.estimators.soil_stiffness import (
     P0_LOG_KS,
     SoilStiffnessEstimate,
-    SoilStiffnessEstimator,
     SoilStiffnessEstimatorConfig,
+    make_estimator,
 )
 from terrain_estimation.models.quarter_car import LRVParams, QuarterCarParams
+from terrain_estimation.models.quarter_car_road import RoadInputParams
 from terrain_estimation.params import ParamSpec, ParamValue
 from terrain_estimation.ros.framework import (
     AdapterHealth,
@@ -294,6 +295,73 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
         0.0,
         10.0,
     ),
+    ParamSpec(
+        "estimator.road_input",
+        "profile",
+        "what drives the road: 'profile' = the measured terrain/profile (1 kHz, MODELS.md A.10); 'stochastic' = "
+        "no profile, the road is ISO 8608 shaped noise of class estimator.road_class at the travel speed "
+        "(joint_states), k_s from the accelerometers alone (quarter car only; issue 21)",
+        choices=("profile", "stochastic"),
+        read_only=True,
+    ),
+    ParamSpec(
+        "estimator.road_class",
+        "D",
+        "ISO 8608 class of the road assumed by road_input stochastic (its geometric-mean G_d(n0)); the level "
+        "matters: a road twice as rough as assumed biases k_tot low",
+        choices=tuple("ABCDEFGH"),
+        read_only=True,
+    ),
+    ParamSpec(
+        "estimator.road_gd_n0",
+        0.0,
+        "[m^3] G_d(n0) of the road (n0 = 0.1 cycles/m) for road_input stochastic, overriding road_class; "
+        "0: the class mean",
+        0.0,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "estimator.road_band_min",
+        0.05,
+        "[cycles/m] low cut of the stochastic road (keeps the elevation bounded)",
+        0.001,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "estimator.road_band_max",
+        10.0,
+        "[cycles/m] band edge of the stochastic road (Butterworth high cut; tire enveloping limits real roads "
+        "to about 10); 0: slope white to infinity",
+        0.0,
+        100.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "estimator.road_speed",
+        0.0,
+        "[m/s] travel speed for the stochastic road; 0: measured (joint_states wheel rate x vehicle.wheel_radius)",
+        0.0,
+        100.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "estimator.road_memory",
+        5.0,
+        "[s] time constant of the forgetting of the evidence on k_s in road_input stochastic (how long it "
+        "remembers a soil; shorter follows a soil change sooner, with a larger variance)",
+        0.1,
+        1e4,
+        read_only=True,
+    ),
+    ParamSpec(
+        "estimator.road_allow_lrv",
+        False,
+        "run road_input stochastic on the LRV although its one accelerometer identifies k_tot only through "
+        "the assumed road level (off: the node refuses, with the reason)",
+        read_only=True,
+    ),
     ParamSpec("frames.base_link", "base_link", "frame of the estimate (prefixed with the namespace)"),
 )
 
@@ -432,6 +500,16 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SoilStiffnessEstimator
         max_step_s=_f(values, "estimator.max_step"),
         profile_noise_std=_f(values, "estimator.profile_noise_std"),
         hdot_window_m=_f(values, "estimator.hdot_window"),
+        road_input=values["estimator.road_input"],
+        road=RoadInputParams(
+            iso_class=str(values["estimator.road_class"]),
+            gd_n0=_f(values, "estimator.road_gd_n0"),
+            band_min=_f(values, "estimator.road_band_min"),
+            band_max=_f(values, "estimator.road_band_max"),
+            speed=_f(values, "estimator.road_speed"),
+            memory_s=_f(values, "estimator.road_memory"),
+            allow_lrv=bool(values["estimator.road_allow_lrv"]),
+        ),
         **vehicle,
     )
 
@@ -467,13 +545,15 @@ class SoilStiffnessAdapter:
     def __init__(self, values: Mapping[str, ParamValue], namespace: str) -> None:
         self.config = estimator_config(values)
         self.kind = self.config.vehicle
-        self.estimator = SoilStiffnessEstimator(self.config)
+        self.estimator = make_estimator(self.config)
+        self._profile_free = self.config.road_input == "stochastic"
         ns = namespace.strip("/")
         self.frame_id = f"{ns}/{values['frames.base_link']}" if ns else str(values["frames.base_link"])
         self.wheel_radius = _f(values, "vehicle.wheel_radius")
         self.pair_timeout_ns = round(_f(values, "estimator.pair_timeout") * 1e9)
         gravity = _f(values, "estimator.gravity")
-        keys = _input_keys(self.kind)
+        # Without a profile (road_input stochastic) the node neither needs nor waits for terrain/profile.
+        keys = tuple(k for k in _input_keys(self.kind) if not (self._profile_free and k == "profile"))
         self.inputs: Sequence[TopicSpec] = tuple(
             TopicSpec(
                 key,
@@ -560,6 +640,8 @@ class SoilStiffnessAdapter:
             rate = float(msg.velocity[names.index("wheel")])
             if math.isfinite(rate):
                 self.travel_speed = rate * self.wheel_radius
+                if self._profile_free:
+                    self.estimator.add_speed(stamp_to_ns(msg.header.stamp) * 1e-9, abs(self.travel_speed))
 
     def _drain(self) -> list[SoilStiffnessEstimate]:
         estimates = self.estimator.drain_estimates()
