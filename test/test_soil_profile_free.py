@@ -15,11 +15,8 @@ import numpy as np
 import pytest
 
 from terrain_estimation.estimators.soil_profile_free import ProfileFreeSoilStiffnessEstimator
-from terrain_estimation.estimators.soil_stiffness import (
-    SoilStiffnessEstimator,
-    SoilStiffnessEstimatorConfig,
-    make_estimator,
-)
+from terrain_estimation.estimators.soil_select import make_estimator
+from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimator, SoilStiffnessEstimatorConfig
 from terrain_estimation.models.quarter_car import QuarterCarParams
 from terrain_estimation.models.quarter_car_road import ISO8608_GD_N0, QuarterCarRoadModel, RoadInputParams
 from vehicle_sim.plants.quarter_car import QuarterCarVehicle, Scenario, SimulationResult, SpeedProfile, simulate

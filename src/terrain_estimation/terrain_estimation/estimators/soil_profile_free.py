@@ -2,7 +2,7 @@
 
 Selected by ``SoilStiffnessEstimatorConfig.road_input = "stochastic"`` (node
 parameter ``estimator.road_input``); built by
-:func:`terrain_estimation.estimators.soil_stiffness.make_estimator`. The model is
+:func:`terrain_estimation.estimators.soil_select.make_estimator`. The model is
 :class:`~terrain_estimation.models.quarter_car_road.QuarterCarRoadModel`: the
 quarter car's motion states augmented with a shaping filter of the ISO 8608
 road (class level G_d(n0), band ``band_min … band_max``, speed v), so that the

@@ -204,7 +204,6 @@ __all__ = [
     "EstimatorCounters",
     "SoilStiffnessEstimator",
     "make_filter",
-    "make_estimator",
     "FILTER_CLASSES",
 ]
 
@@ -342,7 +341,7 @@ class SoilStiffnessEstimatorConfig:
         road_input: ``"profile"`` (default: the measured profile drives the
             model, this class) or ``"stochastic"`` (no profile: the road is
             ISO 8608 shaped noise, :mod:`.soil_profile_free`; build with
-            :func:`make_estimator`).
+            :func:`~terrain_estimation.estimators.soil_select.make_estimator`).
         road: the stochastic road (``road_input = "stochastic"`` only).
     """
 
@@ -649,20 +648,6 @@ _EPS_T = 1e-9  # stamp comparison tolerance (s): stamps are float conversions
 _HDOT_DEGREE = 5
 _HDOT_MAX_WINDOW_S = 0.1
 _SPEED_SPAN_S = 0.05
-
-
-def make_estimator(config: SoilStiffnessEstimatorConfig | None = None) -> Any:
-    """The estimator ``config.road_input`` selects: :class:`SoilStiffnessEstimator` (profile) or the profile-free one.
-
-    Raises:
-        ValueError: a configuration the selected mode cannot run.
-    """
-    cfg = config if config is not None else SoilStiffnessEstimatorConfig()
-    if cfg.road_input == "stochastic":
-        from terrain_estimation.estimators.soil_profile_free import ProfileFreeSoilStiffnessEstimator
-
-        return ProfileFreeSoilStiffnessEstimator(cfg)
-    return SoilStiffnessEstimator(cfg)
 
 
 class SoilStiffnessEstimator:

@@ -29,11 +29,11 @@ from typing import Any
 from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import Imu, JointState
 
+from terrain_estimation.estimators.soil_select import make_estimator
 from terrain_estimation.estimators.soil_stiffness import (
     P0_LOG_KS,
     SoilStiffnessEstimate,
     SoilStiffnessEstimatorConfig,
-    make_estimator,
 )
 from terrain_estimation.models.quarter_car import LRVParams, QuarterCarParams
 from terrain_estimation.models.quarter_car_road import RoadInputParams

@@ -42,7 +42,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from terrain_estimation.analysis.consistency import consistency_report
 from terrain_estimation.cli import cli_main
-from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimatorConfig, make_estimator
+from terrain_estimation.estimators.soil_select import make_estimator
+from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimatorConfig
 from terrain_estimation.models.quarter_car_road import ISO8608_GD_N0
 from terrain_estimation.tools.reporting import cpu_seconds, git_revision, reproduction_arguments, write_section
 from terrain_estimation.tools.reporting import format_number as fmt
