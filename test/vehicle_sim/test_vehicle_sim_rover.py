@@ -129,11 +129,57 @@ def test_constraints_hold_over_a_run(rolling_run):
     assert np.max(np.abs(truth.constraint_residual)) < 1e-4
     centres = truth.wheel_centre
     path = TERRAINS["rolling"]()
-    np.testing.assert_allclose(centres[..., 1], path.height(centres[..., 0]), atol=1e-4)
-    # The centre velocity is along the path: γ from the velocity (eq. 79) equals γ from the slope.
+    # Each centre runs its sinkage below the path (issue 21).
+    np.testing.assert_allclose(centres[..., 1], path.height(centres[..., 0]) - truth.sinkage, atol=1e-4)
+    # The centre velocity is along the path up to the sinking rate: γ from the velocity (eq. 79) differs from
+    # γ of the slope by atan(ṡ/v): ≈ 1e-2 rad in the first 0.1 s (the wheels settle from the start's sinkage
+    # to the held loads'), then ≤ 2e-3 rad as the loads change along the path.
+    velocity = truth.wheel_centre_velocity[50:]
+    gamma_velocity = np.arctan(-velocity[..., 1] / velocity[..., 0])
+    assert 1e-4 < np.max(np.abs(gamma_velocity - truth.contact_angle[50:])) < 3e-3
+    assert np.all(np.isfinite(truth.acceleration))
+
+
+def test_without_sinkage_the_centres_ride_on_the_path():
+    run = simulate_rover(RoverScenario(terrain="rolling", duration=1.0, start_x=0.9, seed=1, wheel_sinkage=False))
+    truth = run.truth
+    np.testing.assert_array_equal(truth.sinkage, 0.0)
+    path = TERRAINS["rolling"]()
+    np.testing.assert_allclose(truth.wheel_centre[..., 1], path.height(truth.wheel_centre[..., 0]), atol=1e-9)
     velocity = truth.wheel_centre_velocity
     np.testing.assert_allclose(np.arctan(-velocity[..., 1] / velocity[..., 0]), truth.contact_angle, atol=1e-5)
-    assert np.all(np.isfinite(truth.acceleration))
+
+
+def test_wheels_sink_by_their_own_wong_reece_sinkage(flat_run):
+    # Issue 21: each wheel sinks r (1 - cos θ0(W, i)) of the plant's own Wong–Reece solution, so wheels under
+    # different loads ride at different depths and the body pitches by the difference.
+    from vehicle_sim.terrain.wong_reece import KAPVIK_WHEEL, contact_angle
+
+    truth = flat_run.truth
+    k = -1
+    theta0 = contact_angle(truth.normal_load[k], truth.slip[k])
+    expected = KAPVIK_WHEEL.radius * (1.0 - np.cos(theta0))
+    np.testing.assert_allclose(truth.sinkage[k], expected, rtol=0.02)
+    assert np.all((truth.sinkage[k] > 0.010) & (truth.sinkage[k] < 0.025))  # 10-25 mm at 40-60 N
+    # The rear wheel carries most (the soil moments load it): it sinks deepest, and the body pitches.
+    assert truth.sinkage[k][0] - truth.sinkage[k][2] > 1e-3
+    np.testing.assert_allclose(truth.wheel_centre[k][:, 1], -truth.sinkage[k], atol=1e-6)
+    assert abs(truth.pitch[k]) > 1e-3
+    # Deeper with slip (dynamic sinkage): the same loads at a higher slip need a larger θ0.
+    assert np.all(contact_angle(truth.normal_load[k], truth.slip[k] + 0.3) > theta0)
+
+
+def test_sinkage_follows_a_rising_load_fast_and_a_falling_one_over_a_contact_length(rolling_run):
+    # Rising loads are followed within ≈ 0.1 s, falling ones lag by a contact length of travel (the compacted
+    # rut stays): the wheels run deeper than their steady sinkage, never much shallower.
+    from vehicle_sim.terrain.wong_reece import KAPVIK_WHEEL, contact_angle
+
+    truth = rolling_run.truth
+    steady = KAPVIK_WHEEL.radius * (1.0 - np.cos(contact_angle(truth.normal_load, np.abs(truth.slip))))
+    lag = (truth.sinkage - steady)[10:]  # after the start's settling
+    assert np.all(np.isfinite(truth.sinkage))
+    assert np.max(lag) > 1.5e-4  # measured 2.1e-4 m
+    assert np.min(lag) > -0.3 * np.max(lag)  # measured -2.2e-5 m
 
 
 def test_curved_terrain_moves_the_body_vertically(rolling_run):
@@ -174,8 +220,9 @@ def test_static_loads_sum_to_the_weight_and_split_by_the_geometry(flat_run):
         rhs.append(-(np.sum(r[wheels, 1] * DP[wheels]) - np.sum(tau[wheels]) + gravity_moment))
     predicted = np.linalg.solve(np.array(rows), np.array(rhs))
     np.testing.assert_allclose(W, predicted, atol=0.02)
-    # The soil moments load the rear bogie wheel: W1 − W2 = (τ_R1 + τ_R2 + a ΣDP)/b.
-    assert W[0] - W[1] == pytest.approx((tau[0] + tau[1] + P.bogie_joint_height * (DP[0] + DP[1])) / 0.175, abs=0.02)
+    # The soil moments load the rear bogie wheel: W1 − W2 = (τ_R1 + τ_R2 + a ΣDP)/b on a level bogie (the
+    # differential sinkage tilts it by a few mrad, which the exact free-body check above includes).
+    assert W[0] - W[1] == pytest.approx((tau[0] + tau[1] + P.bogie_joint_height * (DP[0] + DP[1])) / 0.175, rel=0.05)
 
 
 def test_slip_small_and_positive_on_flat_ground(flat_run):
@@ -187,7 +234,11 @@ def test_slip_small_and_positive_on_flat_ground(flat_run):
         truth.wheel_torque[-1], truth.resistive_torque[-1] + P.wheel_damping * truth.velocity[-1, 4:], atol=0.01
     )
     np.testing.assert_allclose(truth.contact_angle, 0.0, atol=1e-12)
-    np.testing.assert_allclose(truth.specific_force[-1], [0.0, P.gravity], atol=1e-4)
+    # At rest in the body frame: gravity, tilted by the pitch the differential sinkage gives the body.
+    pitch = truth.pitch[-1]
+    np.testing.assert_allclose(
+        np.abs(truth.specific_force[-1]), P.gravity * np.abs([np.sin(pitch), np.cos(pitch)]), atol=1e-4
+    )
 
 
 def test_truth_lies_on_the_terramechanics_model(rolling_run):
@@ -201,13 +252,26 @@ def test_truth_lies_on_the_terramechanics_model(rolling_run):
     np.testing.assert_allclose(truth.resistive_torque, tau, atol=1e-9)
 
 
-def test_load_cells_read_the_normal_load_on_flat_ground(flat_run):
-    truth = flat_run.truth
-    # γ = 0 and ε = 0 on level ground: F_L = W, F_⊥ = DP (eqs. 81–82), W the normal load that acts
-    # (the vertical reaction λ at the sample), which the soil model's W held over the step follows.
+def test_load_cells_read_the_normal_load_on_flat_ground():
+    # Without sinkage, γ = 0 and ε = 0 on level ground: F_L = W, F_⊥ = DP (eqs. 81–82), W the normal load that
+    # acts (the vertical reaction λ at the sample), which the soil model's W held over the step follows.
+    truth = simulate_rover(RoverScenario(terrain="flat", duration=2.0, seed=3, wheel_sinkage=False)).truth
     np.testing.assert_allclose(truth.load_axial, truth.vertical_reaction, atol=1e-9)
     np.testing.assert_allclose(truth.load_perpendicular, truth.drawbar_pull, atol=1e-9)
     np.testing.assert_allclose(truth.load_axial, truth.normal_load, atol=0.05)
+
+
+def test_load_cells_see_the_tilt_of_differential_sinkage(flat_run):
+    # With sinkage the carriers tilt (ε ≠ 0) on level ground: the cells read W and DP rotated by γ − ε = −ε.
+    from terrain_estimation.models.rover import load_cell_forces
+
+    truth = flat_run.truth
+    assert np.max(np.abs(truth.carrier_angle[-1])) > 1e-3
+    axial, perp = load_cell_forces(
+        truth.vertical_reaction, truth.drawbar_pull, truth.contact_angle, truth.carrier_angle
+    )
+    np.testing.assert_allclose(truth.load_axial, axial, atol=1e-9)
+    np.testing.assert_allclose(truth.load_perpendicular, perp, atol=1e-9)
 
 
 # -- sensors -------------------------------------------------------------------------------

@@ -29,7 +29,7 @@ DP(W, i), τ_R(W, i) models of ``terrain_msgs/TerrainResponseModel`` (C.7).
 
 * Honest variances (issue 21, :mod:`~terrain_estimation.estimators.rover_noise`):
   process noise sized to the change per step, Estimator 1's wheel-rate Q and
-  slip R and Estimator 2/3's Q of W and DP matched to the innovations
+  slip R and Estimator 2/3's Q of W and DP (rotated with γ) matched to the innovations
   (``noise_matching``), the coloured contact-angle error and eq. 49's
   neglected wheel coupling considered in the published variances
   (``contact_angle_bias``), τ_R published for the window just observed, and
@@ -126,9 +126,11 @@ from terrain_estimation.estimators.rover_noise import (
     NoiseBlock,
     NoiseMatchingConfig,
     considered_variances,
+    coupling_variance,
     is_settled,
     match_noise_scales,
     process_block_part,
+    rotated_force_noise_factor,
     smoothed_random_walk_variance,
 )
 from terrain_estimation.filters.base import Array, GaussianState, UpdateInfo
@@ -207,6 +209,10 @@ _WHEEL_FORCE_P0_SIGMA: tuple[float, ...] = (0.02,) * 3 + (1.0,) * 3 + (1.0,) * 3
 _RATE_IDX: list[int] = list(range(0, 3))
 _SLIP_IDX: list[int] = list(range(19, 22))
 _TAU_IDX: list[int] = list(range(3, 6))
+
+
+#: Memory (steps) of the averaged inertial-coupling variance of τ_R: 5 s at 5 Hz.
+_COUPLING_MEMORY = 25.0
 
 
 def _block_cov(L: Array, columns: list[int]) -> Array:
@@ -646,9 +652,10 @@ class RoverTerrainEstimator:
         self._vertical = (0.0, 0.0)
         self._since_start = 0
         self._scales1 = np.ones(2)  # Q wheel rates, R slips
-        self._scales2 = np.ones(2)  # Q W, Q DP (≥ 1)
+        self._scales2 = np.ones(2)  # Q W, Q DP (rotated with γ, rover_noise.rotated_force_noise_factor)
         self._next_scales = (self._scales1, self._scales2)
         self._tau_step_var = np.zeros(3)  # Q of τ_R over the last step
+        self._coupling_var = np.zeros(3)  # averaged considered coupling variance of τ_R (rover_noise)
         self._next_tau_step_var = np.zeros(3)
         self._last: RoverEstimate | None = None
         self._outbox: list[RoverEstimate] = []
@@ -1121,7 +1128,10 @@ class RoverTerrainEstimator:
                 load_cell_samples=m.cell_n,
                 synthesised_cov=perp_cov,
             )
-        L2 = np.diag(self._q2_sigma * scale * np.repeat(np.sqrt(np.concatenate([[1.0], s2])), 3))
+        L2 = rotated_force_noise_factor(
+            self._q2_sigma * scale * np.repeat(np.sqrt(np.concatenate([[1.0], s2])), 3),
+            np.asarray(self._wheel_force.x, dtype=float),
+        )
         prior2 = self.filter.predict(self._wheel_force, self.wheel_force_model, None, dt, process_noise_sqrt=L2)
         R2 = np.diag(np.sqrt(r2))
         post2, info2 = self.filter.update(prior2, y2, self.wheel_force_model, eps, measurement_noise_sqrt=R2)
@@ -1132,8 +1142,9 @@ class RoverTerrainEstimator:
                 for g, name in ((1, "Q W"), (2, "Q DP"))
             ]
             matched = match_noise_scales(s2, blocks2, info2.innovation, info2.innovation_cov, cfg.noise_matching)
-            # The base Q of W and DP is sized to gently rolling terrain; the scale only opens (steps, 4–6).
-            self._next_scales = (next1, np.maximum(matched, 1.0))
+            # Two-sided: with γ's increment rotating W and DP (rotated_force_noise_factor) the cells no longer
+            # pull γ when the W, DP random walks close (issue 21: before, they were held ≥ their base).
+            self._next_scales = (next1, matched)
         return post1, info1, post2, info2, vertical
 
     def _general_measurement(self, m: _Means, *, pitch_rate: float, bogie_rate: float) -> Array:
@@ -1188,8 +1199,20 @@ class RoverTerrainEstimator:
         # Eq. 49 leaves out the wheels' inertial coupling to the carrier, I_wg (θ̈ + q̈1) on the bogie wheels
         # and I_wg θ̈ on the front: an error of τ_R that no innovation shows (considered, rover_noise).
         pitch_acc, bogie_acc = float(x1[_G.PITCH_ACC]), float(x1[_G.BOGIE_ACC])
-        coupling = self.config.rover.wheel_gear_inertia * np.array([pitch_acc + bogie_acc] * 2 + [pitch_acc])
-        tau_var = smoothed_random_walk_variance(v1[3:6], self._tau_step_var) + coupling * coupling
+        P1 = np.asarray(self._general.P, dtype=float)
+        pa, ba = _G.PITCH_ACC, _G.BOGIE_ACC
+        carrier_acc_var = float(P1[pa, pa] + P1[ba, ba] + 2.0 * P1[pa, ba])
+        # The coupling's size is a property of the terrain over seconds and its one-step estimate â² − P is
+        # mostly noise: â² − P is averaged over _COUPLING_MEMORY steps and floored after averaging (unbiased).
+        if not initialised:
+            b = 1.0 - 1.0 / _COUPLING_MEMORY
+            acc = np.array([pitch_acc + bogie_acc] * 2 + [pitch_acc])
+            var = np.array([carrier_acc_var] * 2 + [float(P1[pa, pa])])
+            self._coupling_var = b * self._coupling_var + (1.0 - b) * (acc * acc - var)
+        coupling = coupling_variance(
+            self.config.rover.wheel_gear_inertia, np.sqrt(np.maximum(self._coupling_var, 0.0)), 0.0
+        )
+        tau_var = smoothed_random_walk_variance(v1[3:6], self._tau_step_var) + coupling
         wheels = tuple(
             WheelTerrainEstimate(
                 wheel=name,

@@ -45,15 +45,29 @@ Which blocks, and why (measured on terrain 1, E1+E2):
   channel as well raised the mean NIS only from ≈ 5 to ≈ 8 of 20 and moved
   the slip estimates enough to double the τ_R(i, W) model's error on the
   step terrains: not done.
-* Estimator 2/3, **Q of W and of DP**, allowed only to open (scale ≥ 1): a
-  scale below 1 let the load cells, which see W and DP only rotated by γ − ε,
-  pull the contact angles (γ error 0.033 rad on the front wheel instead of
-  0.015), and the same holds for a base below ≈ 0.15 N
-  (:class:`~terrain_estimation.models.rover_estimators.WheelForceProcessNoise`).
-  γ's Q stays fixed: its measurement error is coloured (below), which
-  innovations cannot see. The price: the load-cell innovations stay smaller
-  than predicted (mean NIS ≈ 1 of 9 on terrain 1), so the node's NIS band
-  is not met on nominal runs (issue 21, docs/results/rover.md).
+* Estimator 2/3, **Q of W and of DP**, matched both ways since issue 21,
+  item 2, with γ's increment rotating the soil force
+  (:func:`rotated_force_noise_factor`: dW = DP dγ, dDP = −W dγ). With
+  independent random walks the scales were held ≥ 1: a scale below 1 let the
+  load cells, which see W and DP only rotated by γ − ε, pull the contact
+  angles (γ error 0.033 rad on the front wheel instead of 0.015), and the
+  load-cell innovations were 2–7× smaller than predicted (ν²/S 0.02–0.15,
+  Estimator 2's mean NIS ≈ 1 of 9 on terrain 1). Rotated, the cells follow a
+  change of γ without W and DP moving, the scales close (≈ 0.002–0.06 of the
+  base on terrain 1) and the cells' ν²/S are 0.3–1.3 (NIS ≈ 6 of 9) with γ's
+  and DP's errors unchanged or smaller (terrain 1, 100 s: γ 0.0123 → 0.0115
+  rad, DP 0.64 → 0.60 N RMS). γ's Q stays fixed: its measurement error is
+  coloured (below), which innovations cannot see; γ̌'s channels stay cautious
+  (ν²/S 0.05–0.3).
+
+**Estimator 1's NIS** stays ≈ 3.6 of 11 on terrain 1 (issue 21, item 2, not
+met): per channel ν²/S is 0.3/0.03/0.03 on the wheel rates, whose S is τ_R's
+random walk (0.01 N·m per step → 1.9e-3 rad/s over 0.2 s) propagated through
+eq. 49 (the matching cannot see it: the increment reaches the encoders a step
+later); 3e-3 N·m, the change per step at terrain 1's load and slip changes,
+brings the middle and front to ≈ 0.3 but the rear to 2.9 and its τ_R error
+from 3e-4 to 0.036 N·m. The attitude and accelerometer channels are at
+0.01–0.1 and did not move when their Q groups were matched too.
 
 The R scale forgets more slowly (``r_forgetting`` 0.95, 4 s) than the Q
 scales (0.8, 1 s): a sensor does not step.
@@ -82,9 +96,14 @@ as it was, τ_R's σ was the random walk's 0.01 N·m against errors of
 2–8e-4 (issue 21: 14–50× too cautious). The published variance is that of
 the window just observed, ``P_k|k − Q_k``, plus the considered error of
 eq. 49, which leaves out the wheel's inertial coupling to its carrier,
-``I_wg (θ̈ + q̈1)`` (bogie wheels) and ``I_wg θ̈`` (front), evaluated at
-Estimator 1's θ̈, q̈1: on terrain 1 the τ_R error has a lag-1 autocorrelation
-of 0.997 (a model error, not noise) and its RMS is about that term's.
+``I_wg (θ̈ + q̈1)`` (bogie wheels) and ``I_wg θ̈`` (front). Until issue 21,
+item 3 that term was I_wg² â² at Estimator 1's θ̈, q̈1, whose noise (≈ 3e-3
+rad/s² against a true ≈ 6e-4) it counted as coupling: τ_R was 5× too
+cautious (e²/σ² 0.17). It is now the unbiased I_wg² (â² − P_â)
+(:func:`coupling_variance`), averaged over 5 s and floored at 0; on terrain 1
+it is 0 (Estimator 1's acceleration variances exceed the squared estimates):
+τ_R's e²/σ² is 0.5–0.8 on the middle and front wheels and ≈ 3 on the rear,
+whose slow error (≈ 6e-4 N·m RMS, twice the others') nothing here states.
 
 **Settling** (:func:`is_settled`). The first estimates after a
 (re)initialisation come from one window's measurements and an equilibrium
@@ -118,6 +137,8 @@ __all__ = [
     "match_noise_scales",
     "measurement_blocks",
     "process_block_part",
+    "rotated_force_noise_factor",
+    "coupling_variance",
 ]
 
 
@@ -264,6 +285,51 @@ def smoothed_random_walk_variance(posterior_var: Array, step_var: Array, floor_f
     has not happened yet (τ_R was 14–50× too cautious, issue 21).
     """
     out: Array = np.maximum(posterior_var - step_var, floor_fraction * posterior_var)
+    return out
+
+
+def rotated_force_noise_factor(sigma: ArrayLike, state: ArrayLike) -> Array:
+    """Factor L of Estimator 2/3's Q (9, 9) in which γ's increment rotates the soil force: dW = DP dγ, dDP = −W dγ.
+
+    The soil force on a wheel, (W, DP) in the terrain frame at γ, is a force in
+    the world (and carrier) frame that changes slowly; when the terrain angle
+    under the wheel changes by dγ the same force decomposes into
+    ``W + DP dγ`` and ``DP − W dγ`` (the first-order rotation of
+    :func:`considered_variances`). With independent random walks on γ, W and
+    DP (the paper's eq. 77) the load cells, which see the force in the carrier
+    frame, can follow a change of γ only through W and DP, so their random
+    walks had to be ≥ W Δγ ≈ 0.08 N per step (terrain 1) or the cells pulled γ
+    — and were then 2–5× wider than the cells' innovations (issue 21: load-cell
+    ν²/S 0.02–0.15). Per wheel j the increment is
+    ``[n_γ, DP_j n_γ + n_W, −W_j n_γ + n_DP]``, i.e. column j of L gains
+    ``DP_j σ_γ`` in W's row and ``−W_j σ_γ`` in DP's.
+
+    Args:
+        sigma: per-step σ of the nine increments (γ ×3, W ×3, DP ×3) (rad, N).
+        state: x2 = [γ ×3, W ×3, DP ×3], at which the rotation is linearised.
+    """
+    sig = np.asarray(sigma, dtype=float)
+    x = np.asarray(state, dtype=float)
+    if sig.shape != (9,) or x.shape != (9,):
+        raise ValueError(f"sigma and state must have 9 values, got shapes {sig.shape} and {x.shape}")
+    L = np.diag(sig)
+    for j in range(3):
+        L[3 + j, j] = x[6 + j] * sig[j]
+        L[6 + j, j] = -x[3 + j] * sig[j]
+    return L
+
+
+def coupling_variance(inertia: float, acceleration: ArrayLike, acceleration_var: ArrayLike) -> Array:
+    """Variance of τ_R's considered inertial-coupling error ``I_wg a`` from an estimate â of a with variance P_a.
+
+    ``E[â²] = a² + P_a``: squaring the estimate counts its noise as coupling
+    (E1's θ̈, q̈1 are noisier, ≈ 3e-3 rad/s², than the true ≈ 6e-4 on terrain 1,
+    so τ_R was published ≈ 5× too cautious, e²/σ² 0.17). ``max(â² − P_a, 0)``
+    is the unbiased estimate of a²; it is floored at 0 and scaled by I_wg².
+    """
+    a = np.asarray(acceleration, dtype=float)
+    var = np.asarray(acceleration_var, dtype=float)
+    out: Array = inertia * inertia * np.maximum(a * a - var, 0.0)
     return out
 
 

@@ -326,7 +326,7 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
         "filter.noise_matching",
         _EC.noise_matching.enabled,
         "match noise scales to the innovations: Estimator 1's wheel-rate Q and slip R, Estimators 2/3's Q of W "
-        "and DP (opens only, for steps); false: the fixed process_noise.* and R from noise.* and floors.*",
+        "and DP (their noise rotated with gamma); false: the fixed process_noise.* and R from noise.* and floors.*",
     ),
     ParamSpec(
         "filter.noise_matching_forgetting",

@@ -66,7 +66,7 @@ from terrain_estimation.estimators.rover import (
 from terrain_estimation.models.rover import WHEELS, RoverParams
 from terrain_estimation.models.terrain_response import PolynomialModel2D, ValidityRegion, fit_polynomial_2d
 from terrain_estimation.models.terrain_response_error import ValidatedFit, validated_fit
-from terrain_estimation.tools.reporting import Claim, Report, claims_table, reproduction_arguments
+from terrain_estimation.tools.reporting import Claim, Report, claims_table, keep_sections, reproduction_arguments
 from terrain_estimation.tools.reporting import cpu_seconds as _cpu_seconds
 from terrain_estimation.tools.reporting import format_number as _fmt
 from terrain_estimation.tools.reporting import git_revision as _git_revision
@@ -2395,7 +2395,9 @@ def _write_report(
         "",
     ]
     text = "\n".join(header) + "\n" + "\n\n".join(rep.sections) + "\n\n" + "\n".join(tail)
-    rep.out.write_text(text, encoding="utf-8")
+    # Sections other commands write into this page (rover_sinkage's "sinkage") are kept.
+    old = rep.out.read_text(encoding="utf-8") if rep.out.exists() else ""
+    rep.out.write_text(keep_sections(old, text), encoding="utf-8")
     return rep.out
 
 

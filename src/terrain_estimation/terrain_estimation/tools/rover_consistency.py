@@ -182,13 +182,17 @@ def section_consistency(rr: Any, res: Any, variants: Sequence[str], defaults: Se
         *(misses or ["- Nowhere: every quantity meets both criteria pooled over the terrains."]),
         "",
         "Known causes. (1) γ, W and DP carry the geometric contact angle's slow error, considered at one σ_b = "
-        "`filter.contact_angle_bias` (0.01 rad, sized a priori, not fitted to these runs): where γ̌ is better than "
-        "that (the straight slopes of terrains 2–3, the wide step 4) they are cautious, where it is worse (the "
-        "steps of terrains 5–6, whose curvature reaches and passes 1/l_w, the limit [RB] sets for the method and "
-        "beyond which it excludes terrain 6) over-confident; a σ_b that follows the path's curvature change is "
-        "open work. (2) τ_R is published for the window just observed (`P_k|k − Q_k`) plus eq. 49's neglected "
-        "wheel coupling I_wg (θ̈ + q̈1) evaluated at Estimator 1's θ̈, q̈1, whose estimates are noisier (≈ 3e-3 "
-        "rad/s²) than the true accelerations (≈ 6e-4): cautious, never over-confident. (3) Estimators 1 + 3 "
+        "`filter.contact_angle_bias` (0.01 rad, sized a priori for the path beyond the parabola and ≈ 5 mm of "
+        "differential sinkage over 0.35 m, not fitted to these runs). The plant sinks each wheel by its own "
+        "Wong–Reece sinkage (≈ 4–5 mm spread across the wheels on terrains 1, 2, 4–6, ≈ 2 mm on 3; section "
+        '"sinkage", `python -m terrain_estimation.tools.rover_sinkage`): where γ̌ is better than σ_b (the straight '
+        "slopes of terrains 2–3, the wide step 4) they are cautious, where it is worse (the steps of terrains 5–6, "
+        "whose curvature reaches and passes 1/l_w, the limit [RB] sets for the method and beyond which it excludes "
+        "terrain 6) over-confident; a σ_b that follows the path's curvature change is open work. (2) τ_R is "
+        "published for the window just observed (`P_k|k − Q_k`) plus eq. 49's neglected wheel coupling "
+        "I_wg (θ̈ + q̈1), now estimated without counting Estimator 1's acceleration noise (I_wg² (â² − P_â) "
+        "averaged, floored at 0; it was I_wg² â², 5× too cautious): the middle and front wheels are consistent, "
+        "the rear wheel's slow τ_R error (about twice the others') is over-confident. (3) Estimators 1 + 3 "
         "synthesise F_⊥ with an error as slow as γ̌'s that is not considered: in a 200 s run of terrain 1 with "
         "another noise seed the bogie wheels' W was over-confident (e²/σ² 2–4). The paper's choices (ż0^R = 0, "
         "load-proportional split) leave a contact-angle error of 1–2° that no variance here covers.",

@@ -39,6 +39,34 @@ Contact angle γ
     path offset by r_w along its normal (eq. 25), so the terrain normal under
     the wheel is the path normal at its centre.
 
+Sinkage (``RoverScenario.wheel_sinkage``, on by default; issue 21)
+    Each wheel sinks into the soil: its centre runs the depth s_j below the
+    path (Ψ_j = z_j − z_wc(x_j) + s_j(t)), so wheels under different loads and
+    slips ride at different depths and the body pitches by their difference
+    over the wheelbase, which the estimators' geometry (all three centres on
+    one path) does not know. The steady depth is the plant's own Wong–Reece
+    solution (:func:`~vehicle_sim.terrain.wong_reece.contact_angle`, with the
+    full model even when the forces come from the surrogate)::
+
+        z*_j = r (1 − cos θ0(W_j, |i_j|))      (static at i = 0, dynamic: deeper with slip)
+
+    ≈ 14–17 mm for Table II's soil at 40–60 N (≈ 0.2 mm/N; + 0.5 mm from
+    i = 0 to 0.4). The depth follows z* (held over the step with W) as a
+    critically damped second-order lag s̈ = ω² (z* − s) − 2ω ṡ, solved in
+    closed form within the step, so s and ṡ are continuous and the constraint
+    sees no velocity jump. Its rate is asymmetric, as a plastic soil is:
+    a rising load presses the soil under the rim at once (ω = 1 /
+    ``sinkage_loading_time``, 0.1 s: quasi-static pressure–sinkage, smoothed
+    over five control steps; a first-order lag with the load held over the
+    step fed the constraint's Baumgarte force back into W and diverged); a
+    falling load leaves a compacted rut that does not spring back, and the
+    rim climbs onto fresh soil over about one contact length r sin θ0 of
+    travel (ω = |v_t| / (r sin θ0), ≈ 0.5 s⁻¹ at 2 cm/s). ṡ enters Ψ̇, s̈ the
+    constraint acceleration ζ. The soil forces keep acting in the frame of
+    the undisturbed surface (γ from the path slope), so a sinking centre
+    moves at atan(ṡ/v) off the γ it reports. Off: bit-identical to the
+    plant without sinkage.
+
 What is held over a 50 Hz step, and why
     As in the paper, the wheel torques τ_W (PID at 50 Hz) and the normal loads
     W are held over a control step while the slip evolves continuously: DP
@@ -174,7 +202,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any, Literal
 
@@ -198,6 +226,7 @@ from vehicle_sim.terrain.wong_reece import (
     TABLE_II_SOIL,
     RigidWheel,
     WongReeceSoil,
+    contact_angle,
     wheel_forces,
 )
 
@@ -718,6 +747,11 @@ class RoverScenario:
         slip_stencil: δ of the per-step slip quadratic (module docstring).
         start_x: world x of O at t = 0 (m).
         simpson_points: rim nodes per flow region of the full model.
+        wheel_sinkage: sink each wheel into the soil by its Wong–Reece sinkage
+            (module docstring "Sinkage"); False: the wheel centres ride on the
+            path offset r_w from the terrain (the plant before issue 21).
+        sinkage_loading_time: time constant of the sinkage following a rising
+            load or slip (s), > 0; 0.1 s by default (module docstring).
     """
 
     terrain: str = "rolling"
@@ -736,9 +770,12 @@ class RoverScenario:
     slip_stencil: float = 0.02
     start_x: float = 0.0
     simpson_points: int = DEFAULT_SIMPSON_POINTS
+    wheel_sinkage: bool = True
+    sinkage_loading_time: float = 0.1
 
     def __post_init__(self) -> None:
         owner = "RoverScenario"
+        _check_positive(owner, "sinkage_loading_time", self.sinkage_loading_time)
         if self.terrain not in TERRAINS:
             raise ValueError(f"{owner}.terrain must be one of {sorted(TERRAINS)}, got {self.terrain!r}")
         if self.duration is not None:
@@ -827,8 +864,13 @@ class RoverTruth:
         normal_load: W per wheel (N), held over the step.
         drawbar_pull: DP per wheel (N) at (W, i).
         resistive_torque: τ_R per wheel (N·m) at (W, i).
-        contact_angle: γ per wheel (rad), positive downhill.
+        contact_angle: γ per wheel (rad), positive downhill: the slope of the
+            undisturbed terrain surface under the wheel (the soil forces act
+            in its frame), not the direction the sinking centre moves in.
         entry_angle: Wong–Reece θ0 per wheel (rad); NaN with the surrogate.
+        sinkage: depth of each wheel centre below its path, i.e. of the rim's
+            lowest point below the undisturbed surface (m), module docstring
+            "Sinkage"; 0 without ``wheel_sinkage``.
         carrier_angle: ε per wheel (rad).
         wheel_rate: absolute wheel spin θ̇ (+ q̇1) + q̇_j (rad/s).
         wheel_centre: (3, 2) world (x, z) (m).
@@ -859,6 +901,7 @@ class RoverTruth:
     resistive_torque: Any
     contact_angle: Any
     entry_angle: Any
+    sinkage: Any
     carrier_angle: Any
     wheel_rate: Any
     wheel_centre: Any
@@ -967,6 +1010,38 @@ class _Terramechanics:
         tau[lifted] = 0.0
         return dp, tau, entry
 
+    def sinkage(self, load: Array, slip: Array, soil_index: NDArray[np.int_]) -> tuple[Array, Array]:
+        """Steady sinkage z* (m) of the wheel centre below the undisturbed surface and the contact length (m).
+
+        z* = r_e (1 − cos θ0(W, |i|)) − h_g from the Wong–Reece entry angle θ0 that
+        carries the load at the slip (eq. 7; skid at |i|, as the forces of eqs.
+        10–11), with the same slip-sinkage scaling and grouser cylinder
+        (r_e = r_w + h_g) as the forces: the rim sinks once the grouser tips
+        are h_g deep. The contact length is r_e sin θ0. Both models (full and
+        surrogate) use the full model's θ0 here: the surrogate gives forces
+        only. A lifted wheel (W ≤ 0) has z* = 0.
+        """
+        load = np.maximum(load, 0.0)
+        model_slip = np.abs(np.clip(slip, -1.0, 1.0))
+        model_load = load * (1.0 + self.slip_sinkage * model_slip) if self.slip_sinkage > 0.0 else load
+        if self.grouser_height > 0.0:
+            model_slip = 1.0 - (1.0 - model_slip) * self.grouser_speed_ratio
+        theta0 = np.zeros_like(load)
+        for index in np.unique(soil_index):
+            rows = soil_index == index
+            theta0[rows] = contact_angle(
+                model_load[rows],
+                model_slip[rows],
+                self.soils[index],
+                self.wheel,
+                simpson_points=self.simpson_points,
+                overload="saturate",
+            )
+        radius = self.wheel.radius
+        depth: Array = np.maximum(radius * (1.0 - np.cos(theta0)) - self.grouser_height, 0.0)
+        length: Array = radius * np.sin(theta0)
+        return depth, length
+
 
 @dataclass(frozen=True)
 class _ForceModel:
@@ -982,6 +1057,8 @@ class _ForceModel:
     drawbar_pull: Array  # (3, 3): a0, a1, a2 per wheel
     resistive_torque: Array
     entry_angle: Array
+    #: Sinkage over the step per wheel, (s0, ṡ0, z*, ω) of :func:`_sinkage_motion` (module docstring "Sinkage").
+    sinkage: tuple[tuple[float, float, float, float], ...] = ((0.0, 0.0, 0.0, 0.0),) * _N_WHEELS
     wheel_torque_list: list[float] = field(init=False, repr=False)
     centre_list: list[float] = field(init=False, repr=False)
     drawbar_pull_list: list[list[float]] = field(init=False, repr=False)
@@ -995,13 +1072,24 @@ class _ForceModel:
         object.__setattr__(self, "resistive_torque_list", self.resistive_torque.tolist())
 
     def with_torque(self, torque: Array) -> _ForceModel:
-        return _ForceModel(
-            torque, self.normal_load, self.centre, self.drawbar_pull, self.resistive_torque, self.entry_angle
-        )
+        return replace(self, wheel_torque=torque)
+
+    def sinkage_at(self, elapsed: float) -> tuple[Array, Array]:
+        """(s, ṡ) per wheel (m, m/s), ``elapsed`` (s) from the start of the step."""
+        motion = [_sinkage_motion(*row, elapsed) for row in self.sinkage]
+        return np.array([m[0] for m in motion]), np.array([m[1] for m in motion])
 
     @classmethod
-    def constant(cls, torque: Array, load: Array, drawbar_pull: Array, resistive_torque: Array) -> _ForceModel:
+    def constant(
+        cls,
+        torque: Array,
+        load: Array,
+        drawbar_pull: Array,
+        resistive_torque: Array,
+        sinkage: Array | None = None,
+    ) -> _ForceModel:
         zeros = np.zeros(_N_WHEELS)
+        depth = zeros if sinkage is None else sinkage
         return cls(
             torque,
             load,
@@ -1009,7 +1097,36 @@ class _ForceModel:
             np.stack([drawbar_pull, zeros, zeros], axis=1),
             np.stack([resistive_torque, zeros, zeros], axis=1),
             np.full(_N_WHEELS, math.nan),
+            _static_sinkage(depth),
         )
+
+
+def _static_sinkage(depth: Array) -> tuple[tuple[float, float, float, float], ...]:
+    """Sinkage held at ``depth`` (m) over a step: (s0, ṡ0, z*, ω) = (s, 0, s, 0) per wheel."""
+    return tuple((float(d), 0.0, float(d), 0.0) for d in depth)
+
+
+def _sinkage_motion(
+    start: float, rate: float, target: float, omega: float, elapsed: float
+) -> tuple[float, float, float]:
+    """(s, ṡ, s̈) at ``elapsed`` (s) of s̈ = ω² (z* − s) − 2ω ṡ from (s0, ṡ0) (m, m/s, m/s²).
+
+    Critically damped: e = s − z* = (A + B τ) e^(−ωτ), A = e0, B = ė0 + ω e0. s and ṡ
+    stay continuous from step to step (only s̈ changes with the held target), so the
+    path constraint never sees a jump of velocity. ω = 0: the sinkage moves at
+    constant ṡ0 (0 for a held depth).
+    """
+    if omega <= 0.0:
+        return start + rate * elapsed, rate, 0.0
+    a = start - target
+    b = rate + omega * a
+    decay = math.exp(-omega * elapsed)
+    position = a + b * elapsed
+    return (
+        target + position * decay,
+        (b - omega * position) * decay,
+        omega * (omega * position - 2.0 * b) * decay,
+    )
 
 
 def _fit_force_model(
@@ -1019,6 +1136,7 @@ def _fit_force_model(
     slip: Array,
     soil_index: NDArray[np.int_],
     stencil: float,
+    sinkage: tuple[tuple[float, float, float, float], ...] = ((0.0, 0.0, 0.0, 0.0),) * _N_WHEELS,
 ) -> _ForceModel:
     """One vectorised terramechanics call at (W, s − δ), (W, s), (W, s + δ) per wheel → quadratics in slip."""
     centre = np.clip(slip, -1.0 + stencil, 1.0 - stencil)
@@ -1030,7 +1148,13 @@ def _fit_force_model(
         return np.stack([mid, (high - low) / (2 * stencil), (high - 2 * mid + low) / (2 * stencil**2)], axis=1)
 
     return _ForceModel(
-        torque, np.maximum(load, 0.0), centre, quadratic(dp), quadratic(tau), entry[_N_WHEELS : 2 * _N_WHEELS]
+        torque,
+        np.maximum(load, 0.0),
+        centre,
+        quadratic(dp),
+        quadratic(tau),
+        entry[_N_WHEELS : 2 * _N_WHEELS],
+        sinkage,
     )
 
 
@@ -1064,9 +1188,9 @@ class _Equations:
         self.beta = scenario.baumgarte_beta
         self._system = np.zeros((10, 10))
 
-    def evaluate(self, state: Array, model: _ForceModel) -> _Evaluation:
-        """Solve eq. 32 at ``state`` (14,) with the held ``model``, with the quantities the samples report."""
-        solution, wheels = self._solve(state, model)
+    def evaluate(self, state: Array, model: _ForceModel, elapsed: float = 0.0) -> _Evaluation:
+        """Solve eq. 32 at ``state`` (14,) with the held ``model``, ``elapsed`` (s) into the step; sample quantities."""
+        solution, wheels = self._solve(state, model, elapsed)
         return _Evaluation(
             g_ddot=solution[:7],
             vertical_reaction=-solution[7:],
@@ -1081,14 +1205,14 @@ class _Equations:
             wheel_rate=np.array(wheels["wheel_rate"]),
         )
 
-    def derivative(self, state: Array, model: _ForceModel) -> Array:
-        """d[g, ġ]/dt."""
+    def derivative(self, state: Array, model: _ForceModel, elapsed: float = 0.0) -> Array:
+        """d[g, ġ]/dt ``elapsed`` (s) into the step (the sinkage moves with time)."""
         derivative = np.empty(_STATE_SIZE)
         derivative[:7] = state[7:]
-        derivative[7:] = self._solve(state, model)[0][:7]
+        derivative[7:] = self._solve(state, model, elapsed)[0][:7]
         return derivative
 
-    def _solve(self, state: Array, model: _ForceModel) -> tuple[Array, dict[str, Any]]:
+    def _solve(self, state: Array, model: _ForceModel, elapsed: float = 0.0) -> tuple[Array, dict[str, Any]]:
         """The bordered system of eq. 32 → ([g̈, −λ], per-wheel quantities).
 
         Per-wheel work is done in Python floats: with three wheels that is
@@ -1125,11 +1249,13 @@ class _Equations:
         across = [0.0] * 3
         for j in range(3):
             dz = slope[j]
-            residual[j] = z[j] - path_z[j]
-            residual_rate = vz[j] - dz * vx[j]
-            # ζ of eq. 32 for Ψ_j = z_j − z_wc(x_j) (no explicit time dependence).
+            # Sinkage s_j(τ) (module docstring): Ψ_j = z_j − z_wc(x_j) + s_j(τ), whose explicit time
+            # dependence adds ṡ to Ψ̇ and s̈ to the constraint acceleration.
+            sink, sink_rate, sink_acceleration = _sinkage_motion(*model.sinkage[j], elapsed)
+            residual[j] = z[j] - path_z[j] + sink
+            residual_rate = vz[j] - dz * vx[j] + sink_rate
             zeta[j] = (
-                -(bias[j][1] - dz * bias[j][0] - second[j] * vx[j] ** 2)
+                -(bias[j][1] - dz * bias[j][0] - second[j] * vx[j] ** 2 + sink_acceleration)
                 - two_alpha * residual_rate
                 - beta_squared * residual[j]
             )
@@ -1191,11 +1317,12 @@ class _Equations:
 
 def _rk4(equations: _Equations, state: Array, model: _ForceModel, dt: float, steps: int) -> Array:
     half, sixth = 0.5 * dt, dt / 6.0
-    for _ in range(steps):
-        k1 = equations.derivative(state, model)
-        k2 = equations.derivative(state + half * k1, model)
-        k3 = equations.derivative(state + half * k2, model)
-        k4 = equations.derivative(state + dt * k3, model)
+    for m in range(steps):
+        tau = m * dt
+        k1 = equations.derivative(state, model, tau)
+        k2 = equations.derivative(state + half * k1, model, tau + half)
+        k3 = equations.derivative(state + half * k2, model, tau + half)
+        k4 = equations.derivative(state + dt * k3, model, tau + dt)
         state = state + sixth * (k1 + 2.0 * (k2 + k3) + k4)
     return state
 
@@ -1206,21 +1333,30 @@ def _rk4(equations: _Equations, state: Array, model: _ForceModel, dt: float, ste
 
 
 def solve_configuration(
-    params: RoverParams, path: WheelPath, x0: float, *, tolerance: float = 1e-13, max_iterations: int = 50
+    params: RoverParams,
+    path: WheelPath,
+    x0: float,
+    *,
+    sinkage: ArrayLike | None = None,
+    tolerance: float = 1e-13,
+    max_iterations: int = 50,
 ) -> Array:
     """Configuration g with O at x0 and all three wheel centres on the path (Ψ = 0), by Newton on (z0, θ, q1).
 
-    Wheel angles are 0. Raises RuntimeError if Newton does not converge.
+    ``sinkage`` (3,) (m, default 0) lowers each wheel centre below the path:
+    Ψ_j = z_j − z_wc(x_j) + s_j = 0. Wheel angles are 0. Raises RuntimeError
+    if Newton does not converge.
     """
+    depth = np.zeros(_N_WHEELS) if sinkage is None else np.asarray(sinkage, dtype=float).reshape(_N_WHEELS)
     g = np.zeros(7)
     g[0] = x0
     level = params.level_wheel_offsets
-    g[1] = float(np.mean(path.height(x0 + level[:, 0]))) - float(np.mean(level[:, 1]))
+    g[1] = float(np.mean(path.height(x0 + level[:, 0]) - depth)) - float(np.mean(level[:, 1]))
     for _ in range(max_iterations):
         terms = dynamics_terms(params, g, np.zeros(7))
         x, z = terms.wheel_centres[:, 0], terms.wheel_centres[:, 1]
         path_z, dz, _ = path.evaluate(x)
-        residual = z - path_z
+        residual = z - path_z + depth
         if np.max(np.abs(residual)) < tolerance:
             return g
         jac = terms.wheel_jacobian[:, 1, :] - dz[:, None] * terms.wheel_jacobian[:, 0, :]
@@ -1279,6 +1415,9 @@ class RoverSimulator:
         self._step_index = 0
         self._integral = np.zeros(_N_WHEELS)
         self._previous_error = np.zeros(_N_WHEELS)
+        self._sinkage = np.zeros(_N_WHEELS)
+        self._sinkage_rate = np.zeros(_N_WHEELS)
+        self._model_elapsed = 0.0  # time into the held model's step where the state is (s)
         self._state, self._model = self._steady_start()
 
     # --- public state -------------------------------------------------------
@@ -1353,6 +1492,12 @@ class RoverSimulator:
             drive0 = tau0 + p.wheel_damping * wheel_rate
             load = self._equations.evaluate(state, _ForceModel.constant(drive0, load, dp0, tau0)).vertical_reaction
 
+        if scenario.wheel_sinkage:
+            # Sunk to the steady depth at the start load and slip; the loads are then re-evaluated there.
+            self._sinkage = self._terramechanics.sinkage(load, np.full(3, slip0), soil_index)[0]
+            g = solve_configuration(p, self.path, scenario.start_x, sinkage=self._sinkage)
+            direction = _manifold_direction(p, self.path, g)
+            state[:7] = g
         # Body speed for slip i0 at the wheels' mean tangent speed per unit ẋ0.
         unit = np.concatenate([g, direction])
         tangent = self._equations.evaluate(unit, self._null_model()).tangent_speed
@@ -1363,7 +1508,7 @@ class RoverSimulator:
         if scenario.controller.integral_gain == 0.0:
             self._integral[:] = 0.0
         self._previous_error = np.zeros(_N_WHEELS)
-        evaluation = self._equations.evaluate(state, _ForceModel.constant(drive0, load, dp0, tau0))
+        evaluation = self._equations.evaluate(state, _ForceModel.constant(drive0, load, dp0, tau0, self._sinkage))
         model = _fit_force_model(
             self._terramechanics,
             drive0,
@@ -1371,6 +1516,7 @@ class RoverSimulator:
             evaluation.slip,
             soil_index,
             scenario.slip_stencil,
+            _static_sinkage(self._sinkage),
         )
         return state, model
 
@@ -1409,11 +1555,14 @@ class RoverSimulator:
         torque = self._control(state)
 
         # W held over the step: λ now, with the new torques and the previous DP/τ_R model.
-        before = self._equations.evaluate(state, self._model.with_torque(torque))
+        # (The previous model at the end of its step: the sinkage's own s, ṡ, s̈ continue, so no spurious
+        # Baumgarte force from a sinking wheel enters W.)
+        before = self._equations.evaluate(state, self._model.with_torque(torque), self._model_elapsed)
         normal_load = before.vertical_reaction * np.sqrt(1.0 + before.slope**2)
         soil_index = self._soil_index(before.centres[:, 0])
+        sinkage = self._sinkage_over_step(normal_load, before, soil_index)
         model = _fit_force_model(
-            self._terramechanics, torque, normal_load, before.slip, soil_index, scenario.slip_stencil
+            self._terramechanics, torque, normal_load, before.slip, soil_index, scenario.slip_stencil, sinkage
         )
         evaluation = self._equations.evaluate(state, model)
         step = min(scenario.integration_step, self._equations.stable_step(evaluation, model))
@@ -1422,8 +1571,37 @@ class RoverSimulator:
 
         self._state = _rk4(self._equations, state, model, self._period / substeps, substeps)
         self._model = model
+        self._sinkage, self._sinkage_rate = model.sinkage_at(self._period)
+        self._model_elapsed = self._period
         self._step_index += 1
         return sample
+
+    def _sinkage_over_step(
+        self, load: Array, before: _Evaluation, soil_index: NDArray[np.int_]
+    ) -> tuple[tuple[float, float, float, float], ...]:
+        """(s0, ṡ0, z*, ω) per wheel for the coming step (module docstring "Sinkage")."""
+        if not self.scenario.wheel_sinkage:
+            return _static_sinkage(np.zeros(_N_WHEELS))
+        target, length = self._terramechanics.sinkage(np.where(load > 0.0, load, 0.0), before.slip, soil_index)
+        loading = 1.0 / self.scenario.sinkage_loading_time
+        rows = []
+        for j in range(_N_WHEELS):
+            start = float(self._sinkage[j])
+            if target[j] >= start:
+                omega = loading
+            else:
+                # Unloading: the compacted rut does not spring back; the rim climbs onto fresh soil over one
+                # contact length of travel (the longer of the two contacts; ≥ 1 mm).
+                contact = max(float(length[j]), self._contact_length(start), 1.0e-3)
+                omega = min(abs(float(before.tangent_speed[j])) / contact, loading)
+            rows.append((start, float(self._sinkage_rate[j]), float(target[j]), omega))
+        return tuple(rows)
+
+    def _contact_length(self, depth: float) -> float:
+        """r_e sin θ0 of a rim sunk ``depth`` (m) below the surface (grouser tips h_g deeper)."""
+        radius = self._terramechanics.wheel.radius
+        cos_theta = 1.0 - min((depth + self._terramechanics.grouser_height) / radius, 1.0)
+        return radius * math.sqrt(max(1.0 - cos_theta * cos_theta, 0.0))
 
     def _sample(
         self,
@@ -1469,6 +1647,7 @@ class RoverSimulator:
             resistive_torque=evaluation.resistive_torque,
             contact_angle=gamma,
             entry_angle=model.entry_angle.copy(),
+            sinkage=model.sinkage_at(0.0)[0],
             carrier_angle=epsilon,
             wheel_rate=evaluation.wheel_rate,
             wheel_centre=evaluation.centres.copy(),

@@ -187,6 +187,20 @@ SCENARIO_SPECS: tuple[ParamSpec, ...] = (
         read_only=True,
     ),
     ParamSpec(
+        "plant.wheel_sinkage",
+        _SCENARIO.wheel_sinkage,
+        "[-] sink each wheel by its Wong-Reece sinkage r (1 - cos theta0(W, i)) (false: centres on the path)",
+        read_only=True,
+    ),
+    ParamSpec(
+        "plant.sinkage_loading_time",
+        _SCENARIO.sinkage_loading_time,
+        "[s] time constant of the sinkage following a rising load or slip",
+        1e-3,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
         "plant.simpson_points",
         _SCENARIO.simpson_points,
         "[-] rim nodes per flow region of the full Wong-Reece model (odd)",
@@ -402,6 +416,8 @@ def make_scenario(values: Mapping[str, ParamValue]) -> RoverScenario:
         slip_stencil=_f(values, "plant.slip_stencil"),
         start_x=_f(values, "scenario.start_x"),
         simpson_points=int(values["plant.simpson_points"]),
+        wheel_sinkage=bool(values["plant.wheel_sinkage"]),
+        sinkage_loading_time=_f(values, "plant.sinkage_loading_time"),
     )
 
 
