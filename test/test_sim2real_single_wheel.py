@@ -17,18 +17,24 @@ from terrain_estimation.sim2real.single_wheel import (
     NOMINAL,
     RigTrials,
     SingleWheelModel,
+    WheelGeometry,
     WheelSoil,
     _apply,
     _rim_row,
     _simpson_weights,
     _soil_vector,
     analyses,
+    baseline_comparison,
+    bulldozing_resistance,
     candidates,
     load_rig_trials,
+    main,
     run,
+    slip_binned_baseline,
     steady_state,
     strongest_stress_field,
     synthetic_trials,
+    tip_slip,
 )
 from terrain_estimation.sim2real.where import Sim2RealError
 from vehicle_sim.effects import effects_for
@@ -236,8 +242,10 @@ def test_model_is_a_replay_model_and_finite_at_every_bound() -> None:
             for ch in model.channels:
                 assert pred[ch.name].shape == (SLIPS.size,)
                 assert np.all(np.isfinite(pred[ch.name])), (name, values)
+    with pytest.raises(ValueError, match="'grousers' does not apply: the wheel is smooth"):
+        model.predict({"grousers": {"grouser_effective_height": 0.005}}, {})
     with pytest.raises(ValueError, match="unknown single-wheel effect"):
-        model.predict({"grousers": {"grouser_height": 0.005}}, {})
+        model.predict({"tire_relaxation": {}}, {})
 
 
 @pytest.mark.parametrize(
@@ -343,11 +351,129 @@ def test_driver_writes_the_report(tmp_path: Path) -> None:
     summary = run(DATA, tmp_path, only=["drive_only"])
     assert set(summary["analyses"]) == {"drive_only"}
     result = summary["analyses"]["drive_only"]
-    assert result["kind"] in ("explained", "not_explained")
+    assert result["kind"] in ("explained", "not_explained", "structure_differs")
     assert result["best"]["shrinkage"]["overall"] > 0.3
     data = json.loads((tmp_path / "single_wheel.json").read_text())
     assert data["data"]["trials_used"] == 27
     assert {r["regime"] for r in data["regimes"]} == {"braking", "low slip", "high slip"}
     text = (tmp_path / "single_wheel.md").read_text()
     assert "Where: residual rig − model per slip regime" in text and "drive_only" in text
+    # Issue 22: the verdict against the slip-binned mean on the same held-out trials.
+    baseline = result["baseline"]["models"]["slip-binned mean"]
+    assert baseline["parameters"] > 0 and baseline["chi2"] > 0
+    assert "Against the simplest empirical model: a slip-binned mean" in text
     assert (tmp_path / "single_wheel_fit.png").stat().st_size > 10_000
+
+
+# ---------------------------------------------------------------------------
+# Issue 22: wheel geometry, grousers, bulldozing, the empirical baseline
+# ---------------------------------------------------------------------------
+
+GROUSERED = WheelGeometry(radius=0.058, width=0.05, grouser_count=12, grouser_height=0.006)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"grouser_count": 12}, "grousers need both a count and a height"),
+        ({"grouser_height": 0.005}, "grousers need both a count and a height"),
+        ({"grouser_count": 12, "grouser_height": -0.001}, "grouser height must be a finite length >= 0 m"),
+        ({"grouser_count": 12, "grouser_height": 0.03}, "below half the wheel radius"),
+        ({"grouser_count": 2.5, "grouser_height": 0.005}, "grouser count must be a whole number"),
+        ({"radius": 0.0}, "wheel radius must be in"),
+        ({"width": float("nan")}, "wheel width must be in"),
+    ],
+)
+def test_wheel_geometry_is_validated(kwargs: dict[str, float], message: str) -> None:
+    with pytest.raises(Sim2RealError, match=message):
+        WheelGeometry(**kwargs)  # type: ignore[arg-type]
+
+
+def test_grousers_apply_to_a_grousered_wheel_only() -> None:
+    assert "grousers" not in SingleWheelModel(_design(), noise=NOISE).candidates
+    model = SingleWheelModel(_design(), noise=NOISE, geometry=GROUSERED)
+    (height,) = model.candidates["grousers"].parameters
+    assert height.bounds == (0.0, GROUSERED.grouser_height)
+    # Tip slip: the rover plant's i_g = 1 − (1 − i) r/(r + h) in drive; a locked rim is a locked tip.
+    i = np.array([0.0, 0.5, 0.9])
+    np.testing.assert_allclose(tip_slip(i, 0.058, 0.006), 1.0 - (1.0 - i) * 0.058 / 0.064)
+    assert tip_slip(np.array([-1.0]), 0.058, 0.006)[0] == -1.0
+    nominal = model.predict({}, {})
+    full = model.predict({"grousers": {"grouser_effective_height": 0.006}}, {})
+    drive = SLIPS >= 0.0
+    assert np.all(full["drawbar_pull"][drive] > nominal["drawbar_pull"][drive])  # more thrust from the lugs
+
+
+def test_geometry_option_of_the_driver_is_checked(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    code = main(["--data", str(tmp_path), "--out", str(tmp_path / "o"), "--grousers", "12", "--quiet"])
+    assert code == 2
+    assert "grousers need both a count and a height" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("geometry", "truth"),
+    [
+        (GROUSERED, {"grousers": {"grouser_effective_height": 0.004}}),
+        (WheelGeometry(), {"bulldozing": {"bulldozing_coefficient": 0.6}}),
+    ],
+    ids=["grousers", "bulldozing"],
+)
+def test_new_rig_effects_are_fitted_back(geometry: WheelGeometry, truth: dict[str, dict[str, float]]) -> None:
+    design = _design(2)
+    sd = {k: v[0] for k, v in NOISE.items()}
+    model = SingleWheelModel(
+        synthetic_trials(design, truth, sd, seed=7, geometry=geometry), noise=NOISE, geometry=geometry
+    )
+    split = analyses(model.trials)[0]
+    report = attribute(model, AttributionSettings(), test_mask={c.name: split.held_out for c in model.channels})
+    (name,) = truth
+    assert report.best is not None and report.best.effects[0] == name, report.verdict
+    for p, v in truth[name].items():
+        # Within 3 standard errors (the rig's 27 trials: s.e. ≈ 15 % of the grouser height).
+        assert report.best.parameters[name][p] == pytest.approx(v, abs=3 * report.best.std[name][p] + 1e-4 * v)
+
+
+def test_bulldozing_resists_only_a_skidding_wheel() -> None:
+    z = np.full(5, 0.02)
+    theta = np.full(5, 0.8)
+    r = bulldozing_resistance(z, np.array([-1.0, -0.5, -0.1, 0.0, 0.5]), theta, NOMINAL)
+    assert r[3] == 0.0 and r[4] == 0.0
+    assert r[0] > r[1] > r[2] > 0.0
+    # Wong's fully mobilised wedge at 20 mm (φ = 29°, c = 1 kPa, γ = 13 kN/m³, b = 50 mm): ≈ 21 N.
+    full = bulldozing_resistance(np.array([0.02]), np.array([-1.0]), np.array([50.0]), NOMINAL)[0]
+    assert 15.0 < full < 30.0
+
+
+def test_slip_binned_baseline_fills_empty_bins_from_its_neighbours() -> None:
+    slip = np.array([-1.0, -0.7, -0.5, 0.0, 0.1, 0.9])
+    values = np.array([10.0, 99.0, 20.0, 1.0, 3.0, 7.0])
+    train = np.array([True, False, True, True, True, True])
+    pred, bins = slip_binned_baseline(slip, values, train, width=0.25)
+    assert bins == 4  # [-1, -0.75), [-0.5, -0.25), [0, 0.25), [0.75, 1]
+    np.testing.assert_allclose(pred, [10.0, 15.0, 20.0, 2.0, 2.0, 7.0])  # -0.7: between -1 and -0.5
+
+
+def test_every_verdict_is_compared_with_the_baseline_on_held_out_trials() -> None:
+    # A smooth trend in slip the slip-binned mean cannot follow between training slips, and a physical
+    # model that has it (the truth): the physics beats the baseline; the nominal model does not.
+    design = _design(3)
+    truth = {"slip_sinkage": {"slip_sinkage_coefficient": 0.8}}
+    model = SingleWheelModel(synthetic_trials(design, truth, {k: v[0] for k, v in NOISE.items()}, 4), noise=NOISE)
+    split = analyses(model.trials)[0]
+    report = attribute(model, AttributionSettings(), test_mask={c.name: split.held_out for c in model.channels})
+    out = baseline_comparison(model, split.held_out, report)
+    assert set(out["models"]) == {"nominal", report.best.name, "slip-binned mean"}  # type: ignore[union-attr]
+    assert out["models"]["slip-binned mean"]["parameters"] > 0
+    assert out["physics_beats_baseline"]
+    assert out["models"]["nominal"]["chi2"] > out["models"][out["physics"]]["chi2"]
+
+
+def test_any_trial_file_of_the_rig_layout_is_read(tmp_path: Path) -> None:
+    rows = [_trial(s, 0.0) for s in (-1.0, -1.0, 0.0, 0.0, 0.5, 0.5)]
+    folder = _write_mat(tmp_path / "grouser", rows)
+    (folder / "all_smooth_data.mat").rename(folder / "all_grouser_data.mat")
+    by_name = load_rig_trials(folder, "all_grouser_data.mat")
+    by_path = load_rig_trials(folder / "all_grouser_data.mat")
+    assert by_name.size == by_path.size == 6 and by_path.source.endswith("all_grouser_data.mat")
+    with pytest.raises(Sim2RealError, match="no such file"):
+        load_rig_trials(folder)  # the default file name is not there

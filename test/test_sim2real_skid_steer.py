@@ -106,16 +106,24 @@ EFFECT_CASES = [
     ("gyro_bias", {"gyro_bias": -0.012}, "s_shape"),
     ("accel_bias", {"accel_bias_x": 0.2, "accel_bias_y": -0.15, "accel_bias_z": 0.12}, "small_radius_turn"),
     ("sensor_delay", {"sensor_delay": 0.045}, "small_radius_turn"),
+    ("sensor_delay", {"sensor_delay": 0.25}, "s_shape"),
+    ("wheel_speed_delay", {"wheel_speed_delay": 0.12}, "s_shape"),
+    ("accel_scale", {"accel_scale_x": 0.05, "accel_scale_y": -0.06, "accel_scale_z": 0.02}, "s_shape"),
+    ("gyro_scale", {"gyro_scale": -0.05}, "s_shape"),
+    ("turning_resistance", {"turning_resistance": 0.3}, "small_radius_turn"),
     ("wheel_radius_error", {"wheel_radius_error": -0.07}, "s_shape"),
     ("friction_change", {"friction_change": 0.6}, "small_radius_turn"),
     ("cornering_stiffness_change", {"cornering_stiffness_change": 1.9}, "s_shape"),
     ("load_transfer_dynamics", {}, "s_shape"),
     ("tire_relaxation", {}, "straight_acceleration"),
     ("terrain_grade", {"terrain_grade": 0.08}, "small_radius_turn"),
+    ("terrain_grade", {"terrain_grade": -0.04, "terrain_bank": 0.09}, "s_shape"),
 ]
 
 
-@pytest.mark.parametrize(("effect", "values", "manoeuvre"), EFFECT_CASES, ids=[c[0] for c in EFFECT_CASES])
+@pytest.mark.parametrize(
+    ("effect", "values", "manoeuvre"), EFFECT_CASES, ids=[f"{c[0]}-{i}" for i, c in enumerate(EFFECT_CASES)]
+)
 def test_replay_with_the_effect_reproduces_the_plant_with_it(effect, values, manoeuvre):
     model = _model(_simulate(manoeuvre, {effect: values}, duration=10.0))
     nominal = _rms_over_sigma(model, {})

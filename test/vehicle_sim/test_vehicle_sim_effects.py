@@ -334,8 +334,13 @@ def test_path_undulation_moves_the_body_vertically(nominal_flat):
     for value in (0.0, 0.137, 0.61):
         np.testing.assert_allclose(path.point(value), [a[0] for a in path.evaluate([value])], atol=1e-15)
     run = simulate_rover(scenario).truth
-    assert np.max(np.abs(nominal_flat.truth.vertical_velocity)) < 1e-12  # ż0^R = 0 on flat ground
-    assert np.max(np.abs(run.vertical_velocity)) > 1e-4  # ≳ 0.5 % of the 2 cm/s forward speed
+    # On flat ground the body moves vertically only as the wheels settle into their sinkage (issue 21: ≈ 4e-5
+    # m/s in the first seconds; ż0^R also holds ẋ0 sin θ of the tilt the differential sinkage gives the body).
+    nominal_vz = np.max(np.abs(nominal_flat.truth.velocity[:, 1]))
+    assert nominal_vz < 1e-4
+    undulated_vz = np.max(np.abs(run.velocity[:, 1]))
+    assert undulated_vz > 3e-4 and undulated_vz > 5.0 * nominal_vz  # ≳ 1.5 % of the 2 cm/s forward speed
+    assert np.max(np.abs(run.vertical_velocity)) > 1e-4
     assert np.max(np.abs(run.constraint_residual)) < 1e-8
     assert np.max(np.abs(run.path_curvature)) > 1.0
 

@@ -31,11 +31,21 @@ Nuisance parameter
 
 Effects (:data:`vehicle_sim.effects.CATALOGUE`, same physics as the plant)
     * ``accel_bias``, ``accel_scale``: reading = (1 + s)(ÿ + g) + b per channel;
-    * ``sensor_delay``: the accelerometers read the specific force d seconds
-      late (linear interpolation of the replay's fine grid);
-    * ``nonlinear_soil``: soil force k_s z₀ (z/z₀)ⁿ about the static sinkage
-      z₀ = W/k_s, in series with the tire (LRV: combined) spring, solved per
-      stage by safeguarded Newton like the plant;
+    * ``sensor_delay``: one latency per stream; each accelerometer's
+      prediction is shifted by its latency less the profile's (linear
+      interpolation of the replay's fine grid); see :func:`_candidates`.
+      The fit starts from a least-squares scan of the shift per
+      accelerometer (:meth:`QuarterCarReplay._scan_delays`, 2.5 ms steps):
+      against a broadband ride signal the cost minimum of a delay is a few ms
+      wide, which no coarse grid finds. Accelerometer samples in the last
+      :data:`RELATIVE_DELAY_BOUND` s are left out of every fit (``valid``):
+      with a late profile they have no road input;
+    * ``nonlinear_soil``: the soil's curvature about the static point, an
+      exponential-stiffness law with stiffness k_s there (the nuisance)
+      (:func:`_chain_force`, :func:`_candidates`), in series with the tire
+      (LRV: combined) spring, solved per stage by safeguarded Newton in the
+      soil's own compression (the plant's Bekker-type law, solved for the
+      force, is a separate implementation);
     * ``wheel_liftoff``: total ground force W + F_d ≥ 0;
     * ``suspension_friction``: F_c tanh(Δv / v_f), v_f = 0.02 m/s (2-DOF);
     * ``tire_damping``: c_t (ḣ − ẏ2) in parallel with the tire–soil chain (2-DOF);
@@ -48,6 +58,11 @@ the profile sensor's noise (``estimator.profile_noise_std``) does through the
 replay (quarter-car wheel channel: k_tot/m_2 times the smoothed noise; LRV
 body: the road's posterior error N·S/(S + N) through the body's transfer
 function ÿ/h, with the effect's mass, soil stiffness, contact length and scale).
+
+Not identifiable from a bag (reported, not fitted): a latency common to all
+streams (only differences show), and a profile-sensor gain, which scales both
+accelerometers like equal ``accel_scale`` errors (the suite's out-of-catalogue
+``channel_scale`` case).
 """
 
 from __future__ import annotations
@@ -72,8 +87,64 @@ __all__ = ["QuarterCarReplay", "build_model"]
 FloatArray = NDArray[np.float64]
 
 FRICTION_VELOCITY_SCALE = 0.02  # m/s, as vehicle_sim.plants.quarter_car
+RELATIVE_DELAY_BOUND = 0.35  # s: fit bound of the latency of an accelerometer relative to the profile (either sign)
+SOIL_STIFFENING_BOUNDS = (-4.0, 4.0)  # a of the soil law (Bekker n 0.3–3, ζ ≥ 0.2: |a| ≤ 4 mostly)
+SOIL_SHAPE_BOUNDS = (-20.0, 20.0)  # λ = 1/(n − 1) of the soil law (Bekker n outside 0.95–1.05)
+DELAY_SCAN_STEP = 0.0025  # s: step of the latency scan that starts the sensor_delay fit
 ROAD_PSD_SEGMENT = 1024  # samples per Welch segment of the road spectrum (1 Hz bins at 1 kHz)
 ROAD_PSD_BANDWIDTH = 0.05  # relative half-width of the running median over frequency (road spectra are smooth in log f)
+
+
+def _candidates(vehicle: str) -> dict[str, Candidate]:
+    """The catalogue's candidates, with the latencies and the soil in the replay's own parameters.
+
+    * ``sensor_delay``: a bag shows only differences between streams: an
+      accelerometer's prediction is shifted by its latency less the
+      profile's. LRV: one parameter, ``delay_body``, the body accelerometer's
+      latency relative to the profile, in ±:data:`RELATIVE_DELAY_BOUND`
+      (negative: the profile is the late stream). Quarter car: one latency
+      per stream, ``delay_body``, ``delay_wheel``, ``delay_profile``, each in
+      ±:data:`RELATIVE_DELAY_BOUND`, so that a latency on any one stream, or
+      one common to both accelerometers (= −``delay_profile``), is a move of
+      one parameter from the nominal model (the fit's starts move one
+      parameter at a time). A latency common to all three streams is
+      invisible: the fitted values are one of a family (add the same x to
+      all three); only the differences are reported as found. The
+      catalogue's per-stream latencies map to d_c + d_common − d_profile.
+    * ``nonlinear_soil``: the power-law family about the static point in
+      regular coordinates, stiffness k_s (1 + λ a u)^(1/λ), u = δ/z₀ (k_s the
+      ln k_s nuisance, the stiffness at the static point; :func:`_soil_force`):
+      ``soil_stiffening`` a, the curvature (stiffening a > 0 / softening
+      a < 0 under extra load), and ``soil_shape`` λ, the higher orders
+      (0: exponential). The catalogue's Bekker-type law (n, ζ) is
+      a = (n − 1)/(n ζ), λ = 1/(n − 1). Fitted as (n, ζ), the pair slides
+      along a valley to n's bound (a true n = 1.5, ζ = 0.7 came back as
+      n = 3 with the right curvature: the higher orders are weakly
+      identified at ride amplitudes); in (a, λ) that valley ends inside the
+      range (n → ∞ is λ = 0) and a is well determined. Solved in the soil's
+      compression, not the force as the plant does: a separate implementation.
+    """
+
+    out = candidates_from_catalogue(vehicle)
+    streams = ("body", "wheel", "profile") if vehicle == "quarter_car" else ("body",)
+    bound = RELATIVE_DELAY_BOUND
+    out["sensor_delay"] = Candidate(
+        "sensor_delay",
+        tuple(FitParameter(f"delay_{s}", "s", 0.0, (-bound, bound), 0.02) for s in streams),
+        "latency of each sensor stream; an accelerometer's prediction is shifted by its latency less the "
+        "profile's (only differences between streams are observable)",
+    )
+    out["nonlinear_soil"] = Candidate(
+        "nonlinear_soil",
+        (
+            FitParameter("soil_stiffening", "–", 0.0, SOIL_STIFFENING_BOUNDS, 0.5),
+            FitParameter("soil_shape", "–", 0.0, SOIL_SHAPE_BOUNDS, 1.0),
+        ),
+        "soil stiffness k_s (1 + λ a u)^(1/λ), u = δ/z0, about the static point (a > 0 stiffening, a < 0 "
+        "softening under extra load; λ the law's higher orders, 0 exponential; Bekker's law with exponent n and "
+        "origin ratio ζ: a = (n − 1)/(n ζ), λ = 1/(n − 1))",
+    )
+    return out
 
 
 def _periodic(x: FloatArray) -> tuple[FloatArray, float, FloatArray]:
@@ -141,51 +212,90 @@ def _wiener_road(raw: FloatArray, dt: float, sigma_h: float) -> tuple[FloatArray
 
 
 @compiled
-def _chain_force(deflection: float, series: float, k_s: float, load: float, n: float) -> float:  # pragma: no cover
-    """Dynamic force of a spring ``series`` in series with the Bekker-type soil (see the plant)."""
+def _soil_force(u: float, a: float, lam: float) -> tuple[float, float]:  # pragma: no cover
+    """(G, dG/du) of the soil force F − W = W G(u), stiffness k_s s(u), s = (1 + λ a u)^(1/λ).
+
+    The power-law family through the static point (u = 0, s = 1, s' = a)
+    written regularly in (a, λ): Bekker's n = 1 + 1/λ with its origin
+    1/(λ a) static sinkages away; λ → 0 is the exponential law e^(a u),
+    a → 0 the linear soil. Past the law's origin (1 + λ a u ≤ 0) the force
+    continues oddly when its exponent n > 0 (as the plant's), and with the
+    stiffness at 1 + λ a u = 1e-6 when n ≤ 0 (a soil that locks).
+    """
+    if abs(a) < 1e-12:
+        return u, 1.0
+    if abs(lam) < 1e-9:
+        e = math.exp(a * u)
+        return math.expm1(a * u) / a, e
+    base = 1.0 + lam * a * u
+    inv = 1.0 / lam
+    if abs(lam + 1.0) < 1e-9:  # n = 0: s = 1/(1 − a u), G = −ln(1 − a u)/a
+        edge = 1e-6
+        if base > edge:
+            return -math.log(base) / a, 1.0 / base
+        g_edge = -math.log(edge) / a
+        u_edge = (edge - 1.0) / (lam * a)
+        return g_edge + (u - u_edge) / edge, 1.0 / edge
+    power = 1.0 + inv
+    scale = a * (1.0 + lam)
+    if base > 0.0:
+        return (base**power - 1.0) / scale, base**inv
+    if power > 0.0:
+        mag = -base
+        return (-(mag**power) - 1.0) / scale, mag**inv
+    edge = 1e-6
+    u_edge = (edge - 1.0) / (lam * a)
+    slope = edge**inv
+    return (edge**power - 1.0) / scale + slope * (u - u_edge), slope
+
+
+@compiled
+def _chain_force(
+    deflection: float, series: float, k_s: float, load: float, a: float, lam: float
+) -> float:  # pragma: no cover
+    """Dynamic force (N) of a spring ``series`` in series with the power-law soil about its static point.
+
+    The soil's stiffness is k_s s(u) for a compression δ = u z₀ beyond the
+    static point, z₀ = W/k_s (``k_s`` the fitted nuisance: the stiffness at
+    the static point), F_s = W + W G(u) (:func:`_soil_force`): a > 0 stiffens
+    and a < 0 softens under extra load, λ sets the law's higher orders.
+    The chain's compression D = (F_s − W)/k + δ is solved for u by
+    safeguarded Newton on g(u) = (k_s/k) G(u) + u − D/z₀, increasing in u.
+    """
     ratio = k_s / series
     target = deflection * k_s / load
-    inv_n = 1.0 / n
-    x = 1.0 + target / (1.0 + ratio)
-
-    def residual(x: float) -> float:
-        root = abs(x) ** inv_n
-        return ratio * (x - 1.0) + math.copysign(root, x) - 1.0 - target
-
-    f = residual(x)
+    u = target / (1.0 + ratio)  # the linear chain's answer
+    step = max(0.5, abs(u))
+    f = ratio * _soil_force(u, a, lam)[0] + u - target
     if f == 0.0:
-        return load * (x - 1.0)
-    step = max(1.0, abs(x))
+        return load * _soil_force(u, a, lam)[0]
     if f < 0.0:
-        lo, hi = x, x + step
+        left, right = u, u + step
     else:
-        lo, hi = x - step, x
-    while residual(lo) > 0.0:
+        left, right = u - step, u
+    while ratio * _soil_force(left, a, lam)[0] + left - target > 0.0:
         step *= 2.0
-        lo -= step
-    while residual(hi) < 0.0:
+        left -= step
+    while ratio * _soil_force(right, a, lam)[0] + right - target < 0.0:
         step *= 2.0
-        hi += step
+        right += step
     for _ in range(60):
-        f = residual(x)
+        g, slope = _soil_force(u, a, lam)
+        f = ratio * g + u - target
         if f == 0.0:
             break
         if f < 0.0:
-            lo = x
+            left = u
         else:
-            hi = x
-        ax = abs(x)
-        if ax > 0.0:
-            x_new = x - f / (ratio + inv_n * ax ** (inv_n - 1.0))
-        else:
-            x_new = 0.5 * (lo + hi)
-        if not (lo < x_new < hi):
-            x_new = 0.5 * (lo + hi)
-        if abs(x_new - x) <= 1e-12 * max(1.0, abs(x)):
-            x = x_new
+            right = u
+        u_new = u - f / (ratio * slope + 1.0)
+        if not (left < u_new < right):
+            u_new = 0.5 * (left + right)
+        if abs(u_new - u) <= 1e-12 * max(1.0, abs(u)):
+            u = u_new
             break
-        x = x_new
-    return load * (x - 1.0)
+        u = u_new
+    return load * _soil_force(u, a, lam)[0]
 
 
 @compiled
@@ -199,15 +309,15 @@ def _forces(
     p: FloatArray,
 ) -> tuple[float, float]:  # pragma: no cover
     """(ÿ1, ÿ2) of the 2-DOF model (``two_dof`` = p[12] > 0) or (ÿ1, 0) of the LRV."""
-    m1, m2, k, c, series, k_s, load, n_exp, liftoff, fric, ct, ground_damper, two_dof = p[:13]
+    m1, m2, k, c, series, k_s, load, stiffening, liftoff, fric, ct, ground_damper, two_dof, shape = p[:14]
     kt = series * k_s / (series + k_s)
     if two_dof > 0.0:
         dv = v2 - v1
         suspension = k * (y2 - y1) + c * dv
         if fric > 0.0:
             suspension += fric * math.tanh(dv / FRICTION_VELOCITY_SCALE)
-        if n_exp > 0.0 and n_exp != 1.0:
-            ground = _chain_force(h - y2, series, k_s, load, n_exp)
+        if stiffening != 0.0:
+            ground = _chain_force(h - y2, series, k_s, load, stiffening, shape)
         else:
             ground = kt * (h - y2)
         if ct > 0.0:
@@ -215,8 +325,8 @@ def _forces(
         if liftoff > 0.0 and ground < -load:
             ground = -load
         return suspension / m1, (ground - suspension) / m2
-    if n_exp > 0.0 and n_exp != 1.0:
-        spring = _chain_force(h - y1, series, k_s, load, n_exp)
+    if stiffening != 0.0:
+        spring = _chain_force(h - y1, series, k_s, load, stiffening, shape)
     else:
         spring = kt * (h - y1)
     if ground_damper > 0.0:
@@ -309,7 +419,10 @@ class QuarterCarReplay:
         self.k_s_start = k_s
         ln = math.log(k_s)
         self.nuisance = [FitParameter("ln_k_s", "ln(N/m)", ln, (ln - math.log(30.0), ln + math.log(30.0)), 0.2)]
-        self.candidates: dict[str, Candidate] = candidates_from_catalogue(vehicle)
+        self.candidates: dict[str, Candidate] = _candidates(vehicle)
+        # Samples a profile delayed by up to the fit bound would leave without road input are left out.
+        self.max_relative_delay = RELATIVE_DELAY_BOUND
+        self.valid = {c.name: self.times[c.name] <= float(self._grid[-1]) - RELATIVE_DELAY_BOUND for c in self.channels}
         self._envelope_cache: dict[float, tuple[FloatArray, FloatArray]] = {}
         # (R, σ_h² of the profile, Σ smoothing², Σ derivative²): the noise budget's pieces.
         self._noise = noise
@@ -317,6 +430,55 @@ class QuarterCarReplay:
         self._road_error = road_error
         self._speed_mean = speed_mean
         self.channels = [Channel(c.name, c.topic, c.unit, self.noise_std_for({}, {})[c.name]) for c in self.channels]
+        self._last_grid_accelerations: tuple[FloatArray, FloatArray] | None = None
+        self.delay_scan = self._scan_delays()
+        # Each latency's start offset: its own scan; the profile's: minus the best common shift of both.
+        starts = dict(self.delay_scan)
+        if self.two_dof:
+            starts["profile"] = -starts.pop("common")
+        self.candidates["sensor_delay"] = Candidate(
+            "sensor_delay",
+            tuple(
+                FitParameter(p.name, p.unit, p.off, p.bounds, max(abs(starts[p.name[len("delay_") :]]), 0.01))
+                for p in self.candidates["sensor_delay"].parameters
+            ),
+            self.candidates["sensor_delay"].description,
+        )
+        self.notes.append(
+            "latency scan of the nominal replay against each accelerometer (least squares over the shift, "
+            f"{DELAY_SCAN_STEP * 1e3:g} ms steps in ±{RELATIVE_DELAY_BOUND:g} s): "
+            + ", ".join(f"{name} {1e3 * d:+.1f} ms" for name, d in self.delay_scan.items())
+            + " relative to the profile; its magnitude is the sensor_delay fit's start offset (scale)"
+        )
+
+    def _scan_delays(self) -> dict[str, float]:
+        """Per accelerometer, and common to all (``common``, 2-DOF): the shift of the nominal replay that fits
+        best (s, > 0: the accelerometer is late; the common shift's cost sums the channels in units of σ²).
+
+        A delay against a broadband ride signal has a cost minimum a few ms
+        wide between side lobes of the signal's autocorrelation: no coarse
+        grid of the fit finds it. This scan (every :data:`DELAY_SCAN_STEP`
+        over ±:data:`RELATIVE_DELAY_BOUND`, least squares with the usable
+        samples of each channel, the replay's fine grid interpolated) is the
+        likelihood scan of a pure shift, the other parameters at their start.
+        """
+        self.predict({}, {})
+        assert self._last_grid_accelerations is not None
+        a1, a2 = self._last_grid_accelerations
+        shifts = np.arange(-RELATIVE_DELAY_BOUND, RELATIVE_DELAY_BOUND + 0.5 * DELAY_SCAN_STEP, DELAY_SCAN_STEP)
+        out = {}
+        total = np.zeros(shifts.size)
+        for ch in self.channels:
+            acc = a1 if ch.name == "body" else a2
+            t = self.times[ch.name]
+            use = (t >= self.warmup) & self.valid[ch.name]
+            y = self.measured[ch.name][use] - self.gravity
+            costs = np.array([float(np.sum((y - np.interp(t[use] - d, self._grid, acc)) ** 2)) for d in shifts])
+            out[ch.name] = float(shifts[int(np.argmin(costs))])
+            total += costs / ch.noise_std**2
+        if self.two_dof:
+            out["common"] = float(shifts[int(np.argmin(total))])
+        return out
 
     def with_k_s(self, k_s: float) -> QuarterCarReplay:
         """Restart the ln k_s nuisance (and the noise budget) from ``k_s`` (N/m); returns self."""
@@ -353,7 +515,9 @@ class QuarterCarReplay:
         v = self._values
         e = self._effect_values(effects)
         r_var, s2, c2, d2 = self._noise
-        k_s = math.exp(float(nuisance.get("ln_k_s", math.log(self.k_s_start)))) * e.get("soil_exponent", 1.0)
+        k_s = math.exp(
+            float(nuisance.get("ln_k_s", math.log(self.k_s_start)))
+        )  # the soil's stiffness at the static point
         if self.two_dof:
             series = float(v["vehicle.tire_stiffness"])
             kt = series * k_s / (series + k_s)
@@ -432,21 +596,23 @@ class QuarterCarReplay:
                 series,
                 k_s,
                 load,
-                e.get("soil_exponent", 1.0),
+                e.get("soil_stiffening", 0.0),
                 e.get("wheel_liftoff", 0.0),
                 e.get("suspension_friction", 0.0),
                 e.get("tire_damping", 0.0),
                 ground_damper,
                 1.0 if self.two_dof else 0.0,
+                e.get("soil_shape", 0.0),
             ]
         )
         h, hd = self._road(e.get("tire_contact_length", 0.0))
         a1, a2 = _simulate(h, hd, self._dt, params)
-        delay = e.get("sensor_delay", 0.0)
+        self._last_grid_accelerations = (a1, a2)
         out = {}
         for ch in self.channels:
             acc = a1 if ch.name == "body" else a2
-            t = self.times[ch.name] - delay
+            # Latency of this accelerometer stream relative to the profile's (shift of the prediction).
+            t = self.times[ch.name] - (e.get(f"delay_{ch.name}", 0.0) - e.get("delay_profile", 0.0))
             y = np.interp(t, self._grid, acc) + self.gravity
             y = (1.0 + e.get(f"accel_scale_{ch.name}", 0.0)) * y + e.get(f"accel_bias_{ch.name}", 0.0)
             out[ch.name] = y

@@ -75,7 +75,15 @@ Candidate effects (fitted on some trials, scored on others)
       DP_meas = DP + c W, W_meas = W + c DP (the measured W is the model's input,
       so W = W_meas − c DP is solved by fixed-point iteration).
 
-    Not applicable: ``grousers`` (the wheel is smooth), ``vertical_velocity``,
+    * ``grousers`` (a grousered wheel only, :class:`WheelGeometry`): the
+      soil between the grousers moves with the wheel and is sheared on the
+      cylinder through the tips, r + h_e, at the tip slip (the rover plant's
+      mechanism, :func:`tip_slip`); the effective height h_e is fitted in
+      [0, h_g] (h_g the wheel's grouser height; sparse grousers trap less
+      soil). The sinkage is the tip circle's (the rig zeroes it with the
+      tips on the surface).
+
+    Not applicable: ``grousers`` on a smooth wheel, ``vertical_velocity``,
     ``imu_bias``, ``sensor_delay`` (no body, no IMU, trial means).
 
     Added for the rig, each a physical mechanism of a smooth wheel in sand:
@@ -90,6 +98,15 @@ Candidate effects (fitted on some trials, scored on others)
     * ``max_stress_angle``: c1, c2 of θ_m = θ0 (c1 + c2 i).
     * ``sinkage_offset``: the rig's sinkage zero (the wheel touching the
       prepared surface) is off by a constant (mm).
+    * ``bulldozing`` (issue 22: what the braking data call for): the soil
+      wedge a skidding wheel pushes ahead, κ × Wong's bulldozing resistance
+      b (0.67 c z K_pc + 0.5 γ z² K_pγ) at the model's sinkage z, mobilised
+      by the skid like the Janosi–Hanamoto shear, 1 − exp(−|i| r θ0/K), zero
+      in drive (:func:`bulldozing_resistance`); κ fitted in [0, 3], physically
+      0–1.5 (1: the full passive wedge).
+
+    Physical ranges (:data:`PHYSICAL_RANGES`): a fit outside them, or at a
+    bound of its fit range, is flagged in the report.
     * ``skid_stresses`` (a switch): in braking, the stresses of eqs. 3–9
       evaluated at the skid itself, with the Janosi–Hanamoto shear odd in the
       shear displacement (τ opposes the rim's motion relative to the soil) and
@@ -97,7 +114,9 @@ Candidate effects (fitted on some trials, scored on others)
       anti-symmetry of eqs. 10–11; the sinkage is then that of the skidding
       wheel (eq. 7 at the skid, where the reversed shear pushes the wheel down).
 
-Driver (``python -m terrain_estimation.sim2real.single_wheel --data DIR --out DIR``)
+Driver (``python -m terrain_estimation.sim2real.single_wheel --data DIR --out DIR [--file F] [--radius R]
+[--width B] [--grousers N --grouser-height H]``): any trial file of the rig's layout (``all_results``
+with the fields above), the wheel's geometry as options (default: the smooth wheel).
     Writes ``single_wheel.md`` (a section for ``docs/results/sim2real.md``),
     ``single_wheel.json`` and ``single_wheel_fit.png``:
 
@@ -111,6 +130,9 @@ Driver (``python -m terrain_estimation.sim2real.single_wheel --data DIR --out DI
       on the splits of :func:`analyses` (alternate slips; drive → braking;
       braking → drive; drive trials alone), the held-out trials given as its
       test mask;
+    * the baseline (issue 22): every verdict against a slip-binned mean
+      fitted on the same training trials and scored on the same held-out
+      trials (:func:`slip_binned_baseline`, :func:`baseline_comparison`);
     * identifiability on the rig's own design (:func:`identifiability`):
       simulated trials with one effect each, diagnosed blind (``--validate N``
       seeds, default 2; 0 skips it).
@@ -146,12 +168,19 @@ __all__ = [
     "DATA_FILE",
     "NOMINAL",
     "REGIMES",
+    "BASELINE_BIN_WIDTH",
+    "PHYSICAL_RANGES",
+    "RIG_WHEEL",
     "RIG_WHEEL_RADIUS",
     "RIG_WHEEL_WIDTH",
     "RigTrials",
     "SingleWheelModel",
+    "WheelGeometry",
     "WheelSoil",
     "analyses",
+    "baseline_comparison",
+    "bearing_capacity_factors",
+    "bulldozing_resistance",
     "candidates",
     "consistency_at_measured_sinkage",
     "identifiability",
@@ -161,7 +190,9 @@ __all__ = [
     "run",
     "steady_state",
     "strongest_stress_field",
+    "slip_binned_baseline",
     "synthetic_trials",
+    "tip_slip",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -171,6 +202,8 @@ RIG_WHEEL_RADIUS = 0.058
 """Rig wheel radius r (m)."""
 RIG_WHEEL_WIDTH = 0.05
 """Rig wheel width b (m)."""
+RIG_SOIL_UNIT_WEIGHT = 13.0e3
+"""Specific weight γ of the rig's soil (N/m³; the authors' 13.0 kN/m³)."""
 
 _SIMPSON_POINTS = 9  # = vehicle_sim.terrain.wong_reece.DEFAULT_SIMPSON_POINTS (tested equal)
 _SCAN_POINTS = 48
@@ -198,6 +231,12 @@ class WheelSoil:
         slip_sinkage: c of k_eff = k/(1 + c|i|) (rover plant's implementation).
         skid_stresses: evaluate the stresses at the skid itself instead of eqs. 10–11.
         radius, width: r, b (m).
+        grouser_height: h_e, the effective grouser height (m): the soil is sheared
+            on the cylinder through the grouser tips, r + h_e, at the tip slip
+            (0: a smooth rim; :func:`tip_slip`).
+        bulldozing: κ, the fraction of Wong's passive bulldozing resistance
+            mobilised ahead of a skidding wheel (0: none; :func:`bulldozing_resistance`).
+        unit_weight: γ, the soil's specific weight (N/m³), for the bulldozing wedge.
     """
 
     k_c: float = 0.0
@@ -215,10 +254,81 @@ class WheelSoil:
     skid_stresses: bool = False
     radius: float = RIG_WHEEL_RADIUS
     width: float = RIG_WHEEL_WIDTH
+    grouser_height: float = 0.0
+    bulldozing: float = 0.0
+    unit_weight: float = RIG_SOIL_UNIT_WEIGHT
 
 
 NOMINAL = WheelSoil()
 """The rig authors' soil (README values) and the rig's wheel, every effect off."""
+
+
+@dataclass(frozen=True)
+class WheelGeometry:
+    """The rig wheel's geometry (an option of the driver: the rig has been run with other wheels).
+
+    Attributes:
+        radius: Rim radius r (m), 0.005–2.
+        width: Rim width b (m), 0.005–2.
+        grouser_count: Number of grousers (lugs) on the rim, 0 (smooth) to 360.
+        grouser_height: Their height above the rim (m), 0 for a smooth wheel,
+            otherwise > 0 and below half the radius.
+
+    Raises:
+        Sim2RealError: a value out of its range, or grousers with no height (or
+            a height with no grousers), naming the option and the value.
+    """
+
+    radius: float = RIG_WHEEL_RADIUS
+    width: float = RIG_WHEEL_WIDTH
+    grouser_count: int = 0
+    grouser_height: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("radius", "width"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and 0.005 <= value <= 2.0):
+                raise Sim2RealError(f"wheel {name} must be in [0.005, 2] m, got {value!r}")
+        count, height = self.grouser_count, self.grouser_height
+        if isinstance(count, bool) or not isinstance(count, int | np.integer) or not 0 <= count <= 360:
+            raise Sim2RealError(f"grouser count must be a whole number in [0, 360], got {count!r}")
+        if not (isinstance(height, int | float) and math.isfinite(height) and height >= 0.0):
+            raise Sim2RealError(f"grouser height must be a finite length >= 0 m, got {height!r}")
+        if (count > 0) != (height > 0.0):
+            raise Sim2RealError(
+                f"grousers need both a count and a height: got count {count} and height {height} m "
+                "(a smooth wheel has 0 and 0)"
+            )
+        if height >= 0.5 * self.radius:
+            raise Sim2RealError(
+                f"grouser height {height} m must be below half the wheel radius ({0.5 * self.radius:g} m)"
+            )
+
+    @property
+    def grousered(self) -> bool:
+        """True if the wheel has grousers."""
+        return self.grouser_count > 0
+
+    @property
+    def grouser_spacing(self) -> float:
+        """Arc length between grouser tips (m); inf for a smooth wheel."""
+        if not self.grousered:
+            return math.inf
+        return 2.0 * math.pi * (self.radius + self.grouser_height) / self.grouser_count
+
+    def describe(self) -> str:
+        """One line for the report."""
+        text = f"r = {1e3 * self.radius:g} mm, b = {1e3 * self.width:g} mm"
+        if self.grousered:
+            return (
+                f"{text}, {self.grouser_count} grousers {1e3 * self.grouser_height:g} mm high "
+                f"({1e3 * self.grouser_spacing:.0f} mm apart at the tips)"
+            )
+        return f"{text}, smooth"
+
+
+RIG_WHEEL = WheelGeometry()
+"""The smooth wheel of ``all_smooth_data.mat`` (r = 58 mm, b = 50 mm)."""
 
 
 def _simpson_weights(points: int) -> FloatArray:
@@ -404,20 +514,82 @@ def steady_state(load: ArrayLike, slip: ArrayLike, p: WheelSoil = NOMINAL) -> tu
     Inputs broadcast; outputs have their shape.
     """
     load_, slip_ = np.broadcast_arrays(np.asarray(load, dtype=float), np.asarray(slip, dtype=float))
+    rim_slip = np.ascontiguousarray(slip_.ravel())
+    shear = p
+    if p.grouser_height > 0.0:
+        # The soil between the grousers moves with the wheel: shear on the tip cylinder at the tip slip.
+        shear = dataclasses.replace(p, radius=p.radius + p.grouser_height)
+        rim_slip = tip_slip(rim_slip, p.radius, p.grouser_height)
     dp, theta0 = _steady_rows(
         np.ascontiguousarray(load_.ravel()),
-        np.ascontiguousarray(slip_.ravel()),
+        rim_slip,
         float(p.n),
         float(p.n_slip),
         float(p.n_skid),
         float(p.slip_sinkage),
         bool(p.skid_stresses),
-        _soil_vector(p),
+        _soil_vector(shear),
         _WEIGHTS,
         _SCAN_POINTS,
     )
-    sinkage = p.radius * (1.0 - np.cos(theta0))
+    sinkage = shear.radius * (1.0 - np.cos(theta0))
+    if p.bulldozing > 0.0:
+        dp = dp - p.bulldozing * bulldozing_resistance(sinkage, np.ascontiguousarray(slip_.ravel()), theta0, shear)
     return dp.reshape(load_.shape), sinkage.reshape(load_.shape)
+
+
+def tip_slip(slip: ArrayLike, radius: float, grouser_height: float) -> FloatArray:
+    """Slip of the grouser tips (radius r + h) for the rim slip i (the rig's definition, −1 ≤ i ≤ 1).
+
+    With ρ = V_rim/V_x (1/(1 − i) in drive, 1 + i in skid) the tips move at
+    ρ_t = ρ (r + h)/r, and i_t = (ρ_t − 1)/max(1, ρ_t). In drive this is the
+    rover plant's i_g = 1 − (1 − i) r/(r + h).
+    """
+    i = np.clip(np.asarray(slip, dtype=float), -1.0, 1.0)
+    with np.errstate(divide="ignore"):
+        rho = np.where(i >= 0.0, 1.0 / np.maximum(1.0 - i, 1e-9), 1.0 + i)
+    rho_t = rho * (radius + grouser_height) / radius
+    return np.asarray((rho_t - 1.0) / np.maximum(1.0, rho_t), dtype=float)
+
+
+def bearing_capacity_factors(friction_angle: float) -> tuple[float, float, float]:
+    """(N_c, N_q, N_γ) of a strip footing (Prandtl–Reissner N_q, N_c; Vesić's N_γ) at friction angle φ (rad)."""
+    tan_phi = math.tan(max(friction_angle, 1e-6))
+    n_q = math.exp(math.pi * tan_phi) * math.tan(0.25 * math.pi + 0.5 * friction_angle) ** 2
+    n_c = (n_q - 1.0) / tan_phi
+    n_gamma = 2.0 * (n_q + 1.0) * tan_phi
+    return n_c, n_q, n_gamma
+
+
+def bulldozing_resistance(sinkage: ArrayLike, slip: ArrayLike, theta0: ArrayLike, p: WheelSoil) -> FloatArray:
+    """Resistance (N, ≥ 0) of the soil wedge a skidding wheel pushes ahead, mobilised by the skid.
+
+    Wong's bulldozing resistance of a wheel with sinkage z (Bekker's passive
+    earth pressure on a vertical blade of width b; Wong, *Theory of Ground
+    Vehicles*, ch. 2)::
+
+        R_b = b (0.67 c z K_pc + 0.5 γ z² K_pγ),
+        K_pc = (N_c − tan φ) cos² φ,  K_pγ = (2 N_γ / tan φ + 1) cos² φ
+
+    (:func:`bearing_capacity_factors`). The wedge builds only when the rim
+    slides *forward* over the soil, i.e. in skid (i < 0): a driven wheel
+    throws the soil back. It is mobilised like the Janosi–Hanamoto shear,
+    by the soil's displacement ahead of the wheel over the contact,
+    j = |i| r θ0: R = R_b (1 − exp(−j/K)) for i < 0, 0 otherwise. No
+    parameter is new (c, φ, γ, K are the soil's); the effect's coefficient
+    κ (:attr:`WheelSoil.bulldozing`) scales R (1: the full passive wedge).
+    """
+    z = np.asarray(sinkage, dtype=float)
+    i = np.asarray(slip, dtype=float)
+    theta = np.asarray(theta0, dtype=float)
+    n_c, _, n_gamma = bearing_capacity_factors(p.friction_angle)
+    tan_phi = math.tan(max(p.friction_angle, 1e-6))
+    cos2 = math.cos(p.friction_angle) ** 2
+    k_pc = (n_c - tan_phi) * cos2
+    k_pg = (2.0 * n_gamma / tan_phi + 1.0) * cos2
+    full = p.width * (0.67 * p.cohesion * z * k_pc + 0.5 * p.unit_weight * z**2 * k_pg)
+    mobilised = np.where(i < 0.0, -np.expm1(-np.abs(i) * p.radius * theta / p.shear_modulus), 0.0)
+    return np.asarray(full * mobilised, dtype=float)
 
 
 # ---------------------------------------------------------------------------
@@ -487,8 +659,14 @@ def _slip_groups(slip: FloatArray, tolerance: float = 0.02) -> NDArray[np.int_]:
     return np.concatenate([[0], np.cumsum(np.diff(slip) > tolerance)]).astype(int)
 
 
-def load_rig_trials(folder: str | Path) -> RigTrials:
-    """Read ``all_smooth_data.mat`` from ``folder`` and keep the β = 0 trials.
+def load_rig_trials(folder: str | Path, file: str | None = None) -> RigTrials:
+    """Read a trial file of the rig's layout and keep the β = 0 trials.
+
+    Args:
+        folder: A folder holding the file, or the file itself.
+        file: The file's name in ``folder`` (default :data:`DATA_FILE`, the
+            smooth wheel; any file with the same layout, e.g. another wheel's
+            ``all_results``, is read the same way).
 
     Raises:
         Sim2RealError: missing file or field, or a value that is not finite or
@@ -496,9 +674,10 @@ def load_rig_trials(folder: str | Path) -> RigTrials:
     """
     import scipy.io
 
-    path = Path(folder) / DATA_FILE
+    given = Path(folder)
+    path = given if given.is_file() and file is None else given / (file or DATA_FILE)
     if not path.is_file():
-        raise Sim2RealError(f"{path}: no such file (the CMU single-wheel data set, {DATA_FILE})")
+        raise Sim2RealError(f"{path}: no such file (a CMU single-wheel trial file, e.g. {DATA_FILE})")
     try:
         mat = scipy.io.loadmat(str(path), squeeze_me=True, struct_as_record=False)
     except Exception as exc:  # scipy raises several types for a damaged file
@@ -582,8 +761,26 @@ _SOIL_PARAMETERS = {
 }
 
 
-def candidates(base: WheelSoil = NOMINAL) -> dict[str, Candidate]:
-    """The candidate effects of the rig (module docstring), with their fit ranges."""
+#: Physically plausible range of each rig candidate parameter, where narrower than its fit range:
+#: a fit outside it is flagged in the report (it is not a physical explanation).
+PHYSICAL_RANGES: dict[str, tuple[float, float]] = {
+    "load_cell_bias_dp": (-3.0, 3.0),  # zero drift of a 100 N-class load cell after taring
+    "load_cell_crosstalk": (-0.05, 0.05),
+    "soil_change_cohesion_scale": (0.0, 3.0),  # dry granular soil: c of 0–3 kPa
+    "soil_change_friction_angle_change": (-0.1, 0.1),
+    "sinkage_offset": (-5.0, 5.0),  # mm: zeroing on a prepared surface
+    "bulldozing_coefficient": (0.0, 1.5),  # up to the full passive wedge, with some surcharge
+    "max_stress_angle_c1": (0.2, 0.5),  # Wong & Reece's measurements: 0.18–0.43
+}
+
+
+def candidates(base: WheelSoil = NOMINAL, geometry: WheelGeometry = RIG_WHEEL) -> dict[str, Candidate]:
+    """The candidate effects of the rig (module docstring), with their fit ranges.
+
+    ``grousers`` only for a grousered wheel (``geometry``): its effective
+    height h_e in [0, h_g] (0: the smooth-rim nominal; h_g: all soil between
+    the grousers trapped).
+    """
     from vehicle_sim.effects import CATALOGUE
 
     rover = CATALOGUE["rover"]
@@ -645,10 +842,25 @@ def candidates(base: WheelSoil = NOMINAL) -> dict[str, Candidate]:
         (FitParameter("sinkage_offset", "mm", 0.0, (-10.0, 10.0), 2.0),),
         "zero of the sinkage measurement (wheel touching the prepared surface) off by a constant",
     )
+    out["bulldozing"] = Candidate(
+        "bulldozing",
+        (FitParameter("bulldozing_coefficient", "–", 0.0, (0.0, 3.0), 0.5),),
+        "braking resistance of the soil wedge a skidding wheel pushes ahead: κ × Wong's bulldozing resistance "
+        "b (0.67 c z K_pc + 0.5 γ z² K_pγ), mobilised by the skid as 1 − exp(−|i| r θ0 / K)",
+    )
+    if geometry.grousered:
+        h = geometry.grouser_height
+        out["grousers"] = Candidate(
+            "grousers",
+            (FitParameter("grouser_effective_height", "m", 0.0, (0.0, h), 0.5 * h),),
+            f"{rover['grousers'].description}; effective height h_e in [0, {h:g} m] (the wheel's grousers)",
+        )
     return out
 
 
-def _apply(base: WheelSoil, effects: Mapping[str, Mapping[str, float]]) -> tuple[WheelSoil, dict[str, float]]:
+def _apply(
+    base: WheelSoil, effects: Mapping[str, Mapping[str, float]], geometry: WheelGeometry = RIG_WHEEL
+) -> tuple[WheelSoil, dict[str, float]]:
     """Wheel–soil parameters with ``effects`` applied, and the sensor-level terms (bias, crosstalk, offset)."""
     sensor = {"bias": 0.0, "crosstalk": 0.0, "offset": 0.0}
     changes: dict[str, Any] = {}
@@ -690,6 +902,17 @@ def _apply(base: WheelSoil, effects: Mapping[str, Mapping[str, float]]) -> tuple
             sensor["offset"] += value(effect, "sinkage_offset", 0.0)
         elif effect == "skid_stresses":
             changes["skid_stresses"] = True
+        elif effect == "bulldozing":
+            changes["bulldozing"] = value(effect, "bulldozing_coefficient", 0.0)
+        elif effect == "grousers":
+            if not geometry.grousered:
+                raise ValueError(
+                    "single-wheel effect 'grousers' does not apply: the wheel is smooth "
+                    "(give the wheel's grouser count and height)"
+                )
+            changes["grouser_height"] = min(
+                max(value(effect, "grouser_effective_height", 0.0), 0.0), 0.49 * base.radius
+            )
         else:
             raise ValueError(f"unknown single-wheel effect {effect!r}; known: {sorted(candidates(base))}")
     if changes.get("friction_angle", base.friction_angle) <= 0.0:
@@ -721,6 +944,7 @@ class SingleWheelModel:
     trials: RigTrials
     base: WheelSoil = NOMINAL
     noise: Mapping[str, tuple[float, int]] | None = None
+    geometry: WheelGeometry = RIG_WHEEL
     vehicle: str = "cmu_single_wheel"
     channels: Sequence[Channel] = field(init=False)
     times: Mapping[str, FloatArray] = field(init=False)
@@ -734,6 +958,9 @@ class SingleWheelModel:
 
     def __post_init__(self) -> None:
         t = self.trials
+        g = self.geometry
+        if (self.base.radius, self.base.width) != (g.radius, g.width):
+            self.base = dataclasses.replace(self.base, radius=g.radius, width=g.width)
         if self.noise is None:
             sd_dp, dof_dp = pooled_replicate_std(t.drawbar_pull, t.group)
             sd_z, dof_z = pooled_replicate_std(t.sinkage, t.group)
@@ -748,7 +975,7 @@ class SingleWheelModel:
         self.times = {"drawbar_pull": index, "sinkage": index}
         self.measured = {"drawbar_pull": t.drawbar_pull, "sinkage": t.sinkage}
         self.nuisance = []
-        self.candidates = candidates(self.base)
+        self.candidates = candidates(self.base, g)
         self.regimes = {"slip (–)": (index, t.slip), "load (N)": (index, t.load)}
         self.noise_dof = {"drawbar_pull": dof_dp, "sinkage": dof_z}
         self.notes = [
@@ -756,6 +983,12 @@ class SingleWheelModel:
             "the others are left out: the model is planar",
             f"samples are trials ordered by slip; noise budget = pooled spread of repeated trials: "
             f"DP {sd_dp:.3f} N, sinkage {sd_z:.3f} mm ({dof_dp} degrees of freedom)",
+            f"wheel: {g.describe()}"
+            + (
+                "; the nominal model shears on the rim, the grousers effect on the tip cylinder"
+                if g.grousered
+                else "; the grousers effect does not apply (smooth wheel)"
+            ),
         ]
 
     def predict(
@@ -763,7 +996,7 @@ class SingleWheelModel:
     ) -> dict[str, FloatArray]:
         """DP (N) and sinkage (mm) of every trial with ``effects`` added (nuisance: none)."""
         del nuisance
-        p, sensor = _apply(self.base, effects)
+        p, sensor = _apply(self.base, effects, self.geometry)
         w_meas = self.trials.load
         c = sensor["crosstalk"]
         load = w_meas
@@ -844,6 +1077,79 @@ def analyses(trials: RigTrials) -> list[Analysis]:
             )
         )
     return out
+
+
+BASELINE_BIN_WIDTH = 0.25
+"""Width of the slip bins of the empirical baseline (:func:`slip_binned_baseline`)."""
+
+
+def slip_binned_baseline(
+    slip: FloatArray, values: FloatArray, train: NDArray[np.bool_], width: float = BASELINE_BIN_WIDTH
+) -> tuple[FloatArray, int]:
+    """The field engineer's empirical model: per slip bin, the mean of the training trials in it.
+
+    Bins of ``width`` over [−1, 1] (the last one closed). A trial whose bin
+    has no training trial takes the mean of the nearest bins that have some
+    (by bin index; both neighbours averaged on a tie): a flat extrapolation
+    beyond the training slips, an average of the two sides between them.
+
+    Returns:
+        (prediction of every trial, number of bin means fitted).
+    """
+    if not np.any(train):
+        raise ValueError("the baseline needs at least one training trial")
+    edges = int(round(2.0 / width))
+    index = np.clip(np.floor((np.asarray(slip, dtype=float) + 1.0) / width).astype(int), 0, edges - 1)
+    means = {int(b): float(np.mean(values[train & (index == b)])) for b in np.unique(index[train])}
+    filled = np.array(sorted(means))
+    out = np.empty(slip.shape, dtype=float)
+    for k, b in enumerate(index):
+        if int(b) in means:
+            out[k] = means[int(b)]
+            continue
+        distance = np.abs(filled - b)
+        nearest = filled[distance == distance.min()]
+        out[k] = float(np.mean([means[int(n)] for n in nearest]))
+    return out, len(means)
+
+
+def baseline_comparison(model: SingleWheelModel, held_out: NDArray[np.bool_], report: Any) -> dict[str, Any]:
+    """Held-out χ² (Σ (r/σ)² over held-out trials and channels) of the nominal model, the verdict's model
+    (the engine's best, fitted on the training trials) and the slip-binned mean baseline (fitted on the same
+    training trials), with their parameter counts and penalised scores χ² + p ln n (the engine's score)."""
+    train = ~held_out
+    t = model.trials
+    n = 2 * int(held_out.sum())
+    rows: dict[str, Any] = {}
+    best = report.best
+    models = {"nominal": (model.predict({}, {}), 0)}
+    if best is not None:
+        models[best.name] = (model.predict(best.parameters, {}), int(best.added))
+    baseline = {}
+    bins = 0
+    for ch in model.channels:
+        baseline[ch.name], bins = slip_binned_baseline(t.slip, model.measured[ch.name], train)
+    models["slip-binned mean"] = (baseline, 2 * bins)
+    for name, (pred, params) in models.items():
+        per_channel = {}
+        chi2 = 0.0
+        for ch in model.channels:
+            r = (model.measured[ch.name] - pred[ch.name])[held_out] / ch.noise_std
+            per_channel[ch.name] = float(np.sqrt(np.mean(r**2)))
+            chi2 += float(np.sum(r**2))
+        rows[name] = {
+            "chi2": chi2,
+            "parameters": params,
+            "score": chi2 + params * math.log(max(n, 2)),
+            "rms_sigma": per_channel,
+        }
+    physics = best.name if best is not None else "nominal"
+    return {
+        "models": rows,
+        "physics": physics,
+        "physics_beats_baseline": rows[physics]["score"] < rows["slip-binned mean"]["score"],
+        "held_out_samples": n,
+    }
 
 
 def _regime_table(model: SingleWheelModel, predictions: Mapping[str, Mapping[str, FloatArray]]) -> list[dict[str, Any]]:
@@ -964,11 +1270,15 @@ def strongest_stress_field(
 
 
 def synthetic_trials(
-    trials: RigTrials, effects: Mapping[str, Mapping[str, float]], noise: Mapping[str, float], seed: int
+    trials: RigTrials,
+    effects: Mapping[str, Mapping[str, float]],
+    noise: Mapping[str, float],
+    seed: int,
+    geometry: WheelGeometry = RIG_WHEEL,
 ) -> RigTrials:
     """The rig's slips and loads; channels from the model with ``effects`` plus Gaussian noise of std ``noise``."""
     rng = np.random.default_rng(seed)
-    clean = SingleWheelModel(trials).predict(effects, {})
+    clean = SingleWheelModel(trials, geometry=geometry).predict(effects, {})
     return dataclasses.replace(
         trials,
         drawbar_pull=clean["drawbar_pull"] + rng.normal(0.0, noise["drawbar_pull"], trials.size),
@@ -984,6 +1294,7 @@ def identifiability(
     *,
     settings: Any = None,
     progress: Any = None,
+    geometry: WheelGeometry = RIG_WHEEL,
 ) -> list[dict[str, Any]]:
     """Can the rig's design tell the candidates apart? Simulated trials, one effect each, diagnosed blind.
 
@@ -997,7 +1308,9 @@ def identifiability(
     settings = settings or AttributionSettings()
     sd = {name: value[0] for name, value in noise.items()}
     cases: list[tuple[str, dict[str, dict[str, float]]]] = [("nominal", {})]
-    for name, cand in candidates().items():
+    for name, cand in candidates(
+        dataclasses.replace(NOMINAL, radius=geometry.radius, width=geometry.width), geometry
+    ).items():
         values = {}
         for p in cand.parameters:
             up = p.off + p.scale
@@ -1007,7 +1320,9 @@ def identifiability(
     rows = []
     for truth, effects in cases:
         for seed in seeds:
-            model = SingleWheelModel(synthetic_trials(trials, effects, sd, seed), noise=noise)
+            model = SingleWheelModel(
+                synthetic_trials(trials, effects, sd, seed, geometry), noise=noise, geometry=geometry
+            )
             report = attribute(model, settings=settings, test_mask={ch.name: split.held_out for ch in model.channels})
             best = report.best.name if report.kind != "no_gap" and report.best is not None else ""
             row = {
@@ -1036,11 +1351,15 @@ def run(
     settings: Any = None,
     only: Sequence[str] | None = None,
     validate: Sequence[int] = (),
+    geometry: WheelGeometry = RIG_WHEEL,
+    file: str | None = None,
 ) -> dict[str, Any]:
     """Diagnose the rig data and write ``single_wheel.md``, ``single_wheel.json`` and PNG figures to ``out``.
 
     Args:
-        folder: Folder holding ``all_smooth_data.mat``.
+        folder: Folder holding the trial file (or the file itself).
+        geometry: The wheel's geometry (default: the smooth wheel of ``all_smooth_data.mat``).
+        file: The trial file's name in ``folder`` (default :data:`DATA_FILE`).
         out: Output folder (created).
         progress: Called with one line per step, or None.
         settings: :class:`~terrain_estimation.sim2real.attribution.AttributionSettings` (default: the engine's).
@@ -1052,8 +1371,8 @@ def run(
     """
     from terrain_estimation.sim2real.attribution import AttributionSettings, attribute
 
-    trials = load_rig_trials(folder)
-    full = SingleWheelModel(trials)
+    trials = load_rig_trials(folder, file)
+    full = SingleWheelModel(trials, geometry=geometry)
     noise = {ch.name: (ch.noise_std, full.noise_dof[ch.name]) for ch in full.channels}
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -1066,7 +1385,7 @@ def run(
             continue
         if progress is not None:
             progress(f"analysis {analysis.name}: {analysis.description}")
-        model = SingleWheelModel(trials.subset(analysis.keep), noise=noise)
+        model = SingleWheelModel(trials.subset(analysis.keep), noise=noise, geometry=geometry)
         test_mask = {ch.name: analysis.held_out for ch in model.channels}
         report = attribute(model, settings=settings, test_mask=test_mask, progress=progress)
         reports[analysis.name] = report
@@ -1075,10 +1394,16 @@ def run(
             "trials": int(analysis.keep.sum()),
             "held_out_trials": int(analysis.held_out.sum()),
             "at_bounds": _at_bounds(model, report),
+            "baseline": baseline_comparison(model, analysis.held_out, report),
             **report.to_dict(),
         }
         if report.best is not None:
             predictions[f"{report.best.name} [{analysis.name}]"] = full.predict(report.best.parameters, {})
+        if analysis.name == "alternate":  # the baseline on the figure and in the where-table: the first analysis'
+            predictions[f"slip-binned mean [{analysis.name}]"] = {
+                ch.name: slip_binned_baseline(trials.slip, full.measured[ch.name], ~analysis.held_out)[0]
+                for ch in full.channels
+            }
     summary = {
         "data": {
             "source": trials.source,
@@ -1093,12 +1418,16 @@ def run(
                 "sinkage": float(np.median(trials.sinkage_ripple)),
             },
         },
-        "identifiability": identifiability(trials, noise, validate, settings=settings, progress=progress)
+        "geometry": dataclasses.asdict(geometry),
+        "identifiability": identifiability(
+            trials, noise, validate, settings=settings, progress=progress, geometry=geometry
+        )
         if validate
         else [],
         "nominal_soil": dataclasses.asdict(full.base),
         "at_measured_sinkage": consistency_at_measured_sinkage(trials, full.base),
         "strongest_locked_wheel": _strongest_locked(trials, full.base),
+        "bulldozing_at_measured_sinkage": _bulldozing_at_measured_sinkage(trials, full.base),
         "regimes": _regime_table(full, predictions),
         "analyses": results,
         "notes": full.notes,
@@ -1107,6 +1436,15 @@ def run(
     figures = _figures(full, predictions, out_dir)
     (out_dir / "single_wheel.md").write_text(_markdown(full, summary, reports, figures))
     return summary
+
+
+def _bulldozing_at_measured_sinkage(trials: RigTrials, base: WheelSoil) -> float:
+    """Wong's bulldozing resistance (κ = 1, N) at the most-braked slip's mean measured sinkage."""
+    locked = trials.group == trials.group[int(np.argmin(trials.slip))]
+    z = float(trials.sinkage[locked].mean()) / 1000.0
+    slip = float(trials.slip[locked].mean())
+    theta0 = math.acos(min(max(1.0 - z / base.radius, -1.0), 1.0))
+    return float(bulldozing_resistance(np.array([z]), np.array([slip]), np.array([theta0]), base)[0])
 
 
 def _strongest_locked(trials: RigTrials, base: WheelSoil) -> dict[str, Any]:
@@ -1118,7 +1456,8 @@ def _strongest_locked(trials: RigTrials, base: WheelSoil) -> dict[str, Any]:
 
 
 def _at_bounds(model: SingleWheelModel, report: Any) -> list[str]:
-    """Fitted parameters of the ranked models that ended on a bound of their fit range."""
+    """Fitted parameters of the ranked models that ended on a bound of their fit range or outside their
+    physically plausible range (:data:`PHYSICAL_RANGES`): not a physical explanation, flagged."""
     out = []
     for fitted in list(report.ranking) + list(report.pairs):
         for effect, values in fitted.parameters.items():
@@ -1127,6 +1466,9 @@ def _at_bounds(model: SingleWheelModel, report: Any) -> list[str]:
                 lo, hi = params[name].bounds
                 if v <= lo + 1e-6 * (hi - lo) and params[name].off != lo or v >= hi - 1e-6 * (hi - lo):
                     out.append(f"{fitted.name}: {name} = {v:.4g} at its bound [{lo:g}, {hi:g}]")
+                elif name in PHYSICAL_RANGES and not PHYSICAL_RANGES[name][0] <= v <= PHYSICAL_RANGES[name][1]:
+                    p_lo, p_hi = PHYSICAL_RANGES[name]
+                    out.append(f"{fitted.name}: {name} = {v:.4g} outside its physical range [{p_lo:g}, {p_hi:g}]")
     return out
 
 
@@ -1212,7 +1554,7 @@ def _markdown(
         "",
         f"Data: `{Path(t.source).name}` (robomechanics/3d-terramechanics, C. Pavlov 2022, MIT licence): "
         f"{d['trials_used']} steady-state trials at β = 0 of {d['trials_total']} (β ≠ 0 is left out: the model is "
-        f"planar). Smooth wheel r = 58 mm, b = 50 mm, 10 mm/s; the measured load of each trial "
+        f"planar). Wheel: {model.geometry.describe()}; 10 mm/s; the measured load of each trial "
         f"({lo:.1f}…{hi:.1f} N) and its slip are the inputs, drawbar pull DP = −avg_Fy and sinkage = −avg_Z the "
         "channels.",
         "",
@@ -1274,11 +1616,68 @@ def _markdown(
                 f"{_fmt_params(m)} |"
             )
         if info["at_bounds"]:
-            lines += ["", "At a bound of the fit range: " + "; ".join(info["at_bounds"]) + "."]
+            lines += [
+                "",
+                "Flagged (at a bound of the fit range or outside the physical range: not a physical explanation): "
+                + "; ".join(info["at_bounds"])
+                + ".",
+            ]
         lines.append("")
+    lines += _baseline_markdown(summary["analyses"])
     lines += _identifiability_markdown(summary["identifiability"])
     lines += [f"![{f}]({f})" for f in figures]
     return "\n".join(lines) + "\n"
+
+
+def _baseline_markdown(results: Mapping[str, Any]) -> list[str]:
+    """Every verdict against the field engineer's slip-binned mean, on the same held-out trials."""
+    rows = {name: r["baseline"] for name, r in results.items() if "baseline" in r}
+    if not rows:
+        return []
+    lines = [
+        "### Against the simplest empirical model: a slip-binned mean",
+        "",
+        f"Baseline: per slip bin ({BASELINE_BIN_WIDTH:g} wide over [−1, 1]) the mean DP and sinkage of the "
+        "analysis' training trials; a held-out trial in a bin without training trials takes the nearest bins' "
+        "mean (flat beyond the training slips). Both are scored on the same held-out trials: χ² = Σ (r/σ)², "
+        "score = χ² + p ln n (p: fitted parameters, the baseline's bin means count).",
+        "",
+        "| analysis | verdict's model | χ² nominal | χ² model (p) | χ² baseline (p) | RMS/σ model DP, z | "
+        "RMS/σ baseline DP, z | physics beats baseline |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, b in rows.items():
+        m = b["models"]
+        phys, base = m[b["physics"]], m["slip-binned mean"]
+        lines.append(
+            f"| `{name}` | {b['physics']} | {m['nominal']['chi2']:.0f} | {phys['chi2']:.0f} ({phys['parameters']}) | "
+            f"{base['chi2']:.0f} ({base['parameters']}) | {phys['rms_sigma']['drawbar_pull']:.1f}, "
+            f"{phys['rms_sigma']['sinkage']:.1f} | {base['rms_sigma']['drawbar_pull']:.1f}, "
+            f"{base['rms_sigma']['sinkage']:.1f} | {'**yes**' if b['physics_beats_baseline'] else 'no'}"
+            + (
+                " (χ² within 10 %: by the parameter count only)"
+                if abs(phys["chi2"] - base["chi2"]) < 0.1 * base["chi2"]
+                else ""
+            )
+            + " |"
+        )
+    wins = [n for n, b in rows.items() if b["physics_beats_baseline"]]
+    losses = [n for n, b in rows.items() if not b["physics_beats_baseline"]]
+    lines += [""]
+    if wins:
+        lines.append(
+            f"The physics beats the baseline on {', '.join(f'`{n}`' for n in wins)}: held-out slips outside or "
+            "between the training slips, where a table of means can only copy a neighbour and the model carries "
+            "its structure (load, sinkage, the slip law) across."
+        )
+    if losses:
+        lines.append(
+            f"It does not on {', '.join(f'`{n}`' for n in losses)}: there the slip-binned mean, fitted on the "
+            "same trials, predicts the held-out trials better than the best physical model; the model's "
+            "structure misses what a table of means captures, and its verdict should be read with that."
+        )
+    lines.append("")
+    return lines
 
 
 def _consistency_markdown(rows: Sequence[Mapping[str, float]]) -> list[str]:
@@ -1323,8 +1722,12 @@ def _reading(summary: Mapping[str, Any]) -> list[str]:
             f"{locked['load_measured']:.0f} N). With φ, c, K, n, c1 and a rear contact anywhere in their fit ranges "
             "and the modulus set to carry the measured load at the measured sinkage, the rim stresses give at most "
             f"DP/W = {summary['strongest_locked_wheel']['dp_over_w']:+.2f}: no re-parameterised Wong–Reece wheel "
-            "reaches the rig's braking force. The missing resistance comes from outside the rim's stress field, "
-            "e.g. soil pushed ahead of the skidding wheel (bulldozing), which neither the model nor the catalogue has."
+            "reaches the rig's braking force. The missing resistance comes from outside the rim's stress field: "
+            "soil pushed ahead of the skidding wheel (bulldozing). Wong's fully mobilised wedge at the locked "
+            f"wheel's measured {locked['sinkage_mm']:.0f} mm would resist with "
+            f"{summary['bulldozing_at_measured_sinkage']:.0f} N (the rig's braking force is "
+            f"{-locked['drawbar_pull_measured']:.0f} N); the `bulldozing` candidate evaluates it at the model's own "
+            "sinkage, which is too shallow in braking, so it closes part of the braking gap only (tables below)."
         )
     drive = [regimes[(g, "drawbar_pull")] for g in ("low slip", "high slip") if (g, "drawbar_pull") in regimes]
     if drive:
@@ -1373,7 +1776,14 @@ def _identifiability_markdown(rows: Sequence[Mapping[str, Any]]) -> list[str]:
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m terrain_estimation.sim2real.single_wheel --data DIR --out DIR``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", required=True, help="folder holding all_smooth_data.mat")
+    parser.add_argument("--data", required=True, help="folder holding the trial file, or the trial file itself")
+    parser.add_argument("--file", help=f"trial file of the rig's layout (all_results) in --data (default {DATA_FILE})")
+    parser.add_argument("--radius", type=float, default=RIG_WHEEL_RADIUS, help="wheel rim radius (m)")
+    parser.add_argument("--width", type=float, default=RIG_WHEEL_WIDTH, help="wheel width (m)")
+    parser.add_argument("--grousers", type=int, default=0, metavar="COUNT", help="grousers on the rim (0: smooth)")
+    parser.add_argument(
+        "--grouser-height", type=float, default=0.0, metavar="M", help="grouser height above the rim (m)"
+    )
     parser.add_argument("--out", required=True, help="output folder (Markdown, JSON, PNG)")
     parser.add_argument("--only", nargs="*", help="analyses to run (default: all)")
     parser.add_argument(
@@ -1382,12 +1792,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
     try:
+        geometry = WheelGeometry(args.radius, args.width, args.grousers, args.grouser_height)
         summary = run(
             args.data,
             args.out,
             progress=None if args.quiet else lambda s: print(s, file=sys.stderr),
             only=args.only,
             validate=tuple(range(1, args.validate + 1)),
+            geometry=geometry,
+            file=args.file,
         )
     except Sim2RealError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -12,9 +12,10 @@ Open-loop replay on the bag's inputs
     without its wheel-side rotational dynamics (their output, the wheel speed,
     is measured)::
 
-        m (v̇x − vy r) = Σ (F_x − F_rr) − m g sin γ
-        m (v̇y + vx r) = Σ F_y
-        I_z ṙ         = Σ x_i F_y,i − y_i (F_x,i − F_rr,i)
+        m (v̇x − vy r) = Σ (F_x − F_rr) + m g_bx(ψ)          (ground slope, effect terrain_grade)
+        m (v̇y + vx r) = Σ (F_y + F_b) + m g_by(ψ)          (F_b: effect turning_resistance)
+        I_z ṙ         = Σ x_i (F_y,i + F_b,i) − y_i (F_x,i − F_rr,i)
+        ψ̇ = r
         σ_x = (R ω − v_x,i)/V_r,  σ_y = −v_y,i/V_r,  V_r = max(R|ω|, ε)     (B.4)
         F_rr,i = f_rr F_z,i tanh(v_x,i / v_rr)                             (motion resistance)
         F_z = quasi-static equal-spring loads (B.5) from the specific force
@@ -48,15 +49,40 @@ Wheel speeds
     IMU stamps.
 
 Effects (all of :data:`vehicle_sim.effects.CATALOGUE` ``["skid_steer"]``,
-the same physics as :class:`vehicle_sim.plants.skid_steer.SkidSteerEffects`)
-    ``gyro_bias`` (added to the yaw rate), ``accel_bias`` (x, y, z added),
-    ``sensor_delay`` (IMU channels delayed, linear interpolation between
-    samples), ``wheel_radius_error`` (R(1 + e) in the slips),
-    ``friction_change`` (μ × factor), ``cornering_stiffness_change``
-    (C_α × factor), ``load_transfer_dynamics`` (switch),
-    ``tire_relaxation`` (switch), ``terrain_grade`` (γ: −g sin γ along x,
-    loads × cos γ, IMU z reads g cos γ). Bias and delay only post-process
-    the replay (cached), so fitting them costs almost nothing.
+the same physics as :class:`vehicle_sim.plants.skid_steer.SkidSteerEffects`,
+written separately)
+    Sensors (post-processing of the replayed IMU, :class:`Sensing`; cached
+    replays, so fitting them costs almost nothing): ``gyro_bias`` per axis
+    (z; x, y where the roll/pitch gyros are compared), ``accel_bias`` and
+    ``accel_scale`` per axis, ``gyro_scale`` (yaw), reading = (1 + s) × true
+    + b. Stream delays: ``sensor_delay`` (IMU stream: its reading stamped t
+    is the replay's at t − d) and ``wheel_speed_delay`` (encoder stream: the
+    replay driven by counts of t − d predicts at t what belongs at t + d):
+    both shift the prediction (linear interpolation), by d_imu − d_wheel;
+    a bag shows only that difference, each effect names the stream that is
+    late. With ``wheel_speed_delay`` offered, the last 0.3 s (its upper
+    bound) are left out of every fit and score (:attr:`SkidSteerReplay.valid`):
+    no model can predict IMU samples whose wheel speeds the bag lacks.
+    Physics (a re-run of the replay): ``wheel_radius_error`` (R(1 + e) in
+    the slips), ``friction_change`` (μ × factor),
+    ``cornering_stiffness_change`` (C_α × factor), ``load_transfer_dynamics``
+    (switch), ``tire_relaxation`` (switch), ``terrain_grade`` (a ground plane
+    fixed in the world, grade γ and bank β at the start heading: gravity in
+    the plane's axes g_p = −g (sin γ, cos γ sin β, ·), turned into the body
+    frame by the replay's own heading ψ = ∫ r dt, g_bx = g_px cos ψ +
+    g_py sin ψ, g_by = −g_px sin ψ + g_py cos ψ; loads and IMU z carry
+    g_n = g cos γ cos β), ``turning_resistance`` (lateral soil resistance
+    F_b,i = −c_b F_z,i tanh(v_y,i / 0.05 m/s) added to each wheel's lateral
+    force: a resistive yaw moment in skid-steer turns).
+
+    A bank and an accelerometer bias (y, z) read the same at the IMU when
+    the heading does not change: g sin β on y and g (cos β − 1) on z. The
+    bank also needs lateral tire forces and shifts the loads across the
+    track, but at the simulator's stiffnesses that changes the yaw rate by
+    less than the gyro noise; on a straight run the two are indistinguishable
+    (the engine says so). Once the vehicle turns, a world-fixed slope turns
+    in the body frame (g sin β cos ψ on y, g sin β sin ψ on x) and a bias
+    does not: the bank is identified.
 
 Nuisance parameters
     None by default: the initial state comes from the first wheel speeds
@@ -318,16 +344,29 @@ def vehicle_from_config(config: str | Path | None = None) -> ReplayVehicle:
 
 # Indices of the scalar parameter vector of the kernel.
 _P_RADIUS, _P_CX, _P_CA, _P_MU, _P_FLOOR, _P_MASS, _P_IZ, _P_RR, _P_INV_RRV = range(9)
-_P_GRADE, _P_GN, _P_RELAX, _P_INV_LX, _P_INV_LY, _P_RELAX_FLOOR, _P_LOADDYN = range(9, 16)
+_P_GPX, _P_GN, _P_RELAX, _P_INV_LX, _P_INV_LY, _P_RELAX_FLOOR, _P_LOADDYN = range(9, 16)
 _P_KR, _P_CR, _P_KP, _P_CP, _P_ROLL_DRIVE, _P_PITCH_DRIVE, _P_IR, _P_IP, _P_ROLL_ARM, _P_PITCH_ARM = range(16, 26)
-_N_P = 26
+_P_GPY, _P_BULL, _P_INV_VB = range(26, 29)
+_N_P = 29
+#: Lateral contact speed over which the soil's lateral resistance (turning_resistance) builds up (m/s): the
+#: catalogue's stated form F_b = −c_b F_z tanh(v_y / 0.05 m/s).
+TURNING_RESISTANCE_SPEED = 0.05
 
 
 @compiled
 def _derivative(s, oml, omr, hfx, hfy, p, wx, wy, side, static, lpfx, lpfy, ru, pu, out, work):
-    """State derivative (into ``out``); returns (f_x, f_y, roll accel, pitch accel). Plant's equations."""
+    """State derivative (into ``out``); returns (f_x, f_y, roll accel, pitch accel). Plant's equations.
+
+    State: vx, vy, r, roll, roll rate, pitch, pitch rate, lagged F_x (n), F_y (n), heading ψ from the start.
+    Gravity in the body frame: the plane's (g_px, g_py) at the start heading turned by ψ.
+    """
     n = wx.shape[0]
     vx, vy, r = s[0], s[1], s[2]
+    heading = s[7 + 2 * n]
+    ch = math.cos(heading)
+    sh = math.sin(heading)
+    gbx = p[_P_GPX] * ch + p[_P_GPY] * sh
+    gby = -p[_P_GPX] * sh + p[_P_GPY] * ch
     roll, roll_rate, pitch, pitch_rate = s[3], s[4], s[5], s[6]
     radius, cx, ca, mu, floor = p[_P_RADIUS], p[_P_CX], p[_P_CA], p[_P_MU], p[_P_FLOOR]
     mass = p[_P_MASS]
@@ -399,19 +438,27 @@ def _derivative(s, oml, omr, hfx, hfy, p, wx, wy, side, static, lpfx, lpfy, ru, 
         else:
             fx[i] = ssx
             fy[i] = ssy
+            out[7 + i] = 0.0
+            out[7 + n + i] = 0.0
     sum_x = 0.0
     sum_y = 0.0
     moment = 0.0
+    bull = p[_P_BULL]
     for i in range(n):
         net_x = fx[i] - rpl[i] * load[i]
+        lateral = fy[i]
+        if bull > 0.0:
+            # turning_resistance: the soil's lateral resistance against the wheel's lateral sliding, ∝ its load.
+            lateral -= bull * load[i] * math.tanh(cvy[i] * p[_P_INV_VB])
         sum_x += net_x
-        sum_y += fy[i]
-        moment += wx[i] * fy[i] - wy[i] * net_x
+        sum_y += lateral
+        moment += wx[i] * lateral - wy[i] * net_x
     f_x = sum_x / mass
     f_y = sum_y / mass
-    out[0] = f_x - p[_P_GRADE] + vy * r
-    out[1] = f_y - vx * r
+    out[0] = f_x + gbx + vy * r
+    out[1] = f_y + gby - vx * r
     out[2] = moment / p[_P_IZ]
+    out[7 + 2 * n] = r
     roll_acc = 0.0
     pitch_acc = 0.0
     if loaddyn:
@@ -462,7 +509,7 @@ def _replay_kernel(t, omega, x0, p, wx, wy, side, static, lpfx, lpfy, ru, pu, ba
     """
     m = t.shape[0]
     n = wx.shape[0]
-    size = 7 + 2 * n
+    size = 8 + 2 * n
     s = np.zeros(size)
     for i in range(x0.shape[0]):
         s[i] = x0[i]
@@ -539,8 +586,41 @@ class Physics:
     yaw_inertia_factor: float = 1.0
     rolling_resistance: float | None = None
     terrain_grade: float = 0.0
+    terrain_bank: float = 0.0
+    turning_resistance: float = 0.0
     load_transfer_dynamics: bool = False
     tire_relaxation: bool = False
+
+
+@dataclass(frozen=True)
+class Sensing:
+    """What the sensors do to the replayed IMU (post-processing: no replay is re-run).
+
+    Attributes:
+        shift: IMU stream delay minus wheel-encoder stream delay (s). The IMU
+            reading stamped t is the replay's at t − d_imu; a replay driven by
+            encoder counts of t − d_wheel predicts at t what happened at
+            t − d_wheel, i.e. its prediction belongs at t + d_wheel. Both are a
+            shift of the prediction by ``shift`` (linear interpolation; the
+            first/last prediction held beyond the ends).
+        scale: scale-factor errors of (f_x, f_y, f_z, ω_x, ω_y, ω_z): reading = (1 + s) × true.
+        bias: biases of the same six (added after the scale).
+    """
+
+    shift: float = 0.0
+    scale: FloatArray = field(default_factory=lambda: np.zeros(6))
+    bias: FloatArray = field(default_factory=lambda: np.zeros(6))
+
+    def apply(self, t: FloatArray, imu: FloatArray) -> FloatArray:
+        """The sensed IMU (M, 6) from the replay's true one at the sample times ``t``."""
+        if self.shift != 0.0:
+            out = np.column_stack([np.interp(t - self.shift, t, imu[:, j]) for j in range(imu.shape[1])])
+        else:
+            out = imu.copy()
+        if np.any(self.scale):
+            out *= 1.0 + self.scale
+        out += self.bias
+        return out
 
 
 def replay_imu(
@@ -566,7 +646,11 @@ def replay_imu(
     xw, yw, side = vehicle.wheel_positions()
     xa = np.asarray(vehicle.axle_x, dtype=float)
     m, g, h = vehicle.mass, vehicle.gravity, vehicle.cg_height
-    cos_grade = math.cos(physics.terrain_grade)
+    # The ground plane (grade, bank at the start heading; SkidSteerGround's rotation order: grade about y, then
+    # bank about the new x): gravity in its axes, the normal part constant whatever the heading.
+    cg, sg = math.cos(physics.terrain_grade), math.sin(physics.terrain_grade)
+    cb, sb = math.cos(physics.terrain_bank), math.sin(physics.terrain_bank)
+    cos_grade = cg * cb  # g_n / g
     static = equal_spring_loads(xa, vehicle.track, m, g, h, 0.0, 0.0)
     susp = vehicle.suspension
     load_dyn = physics.load_transfer_dynamics and susp is not None
@@ -590,7 +674,8 @@ def replay_imu(
     p = np.zeros(_N_P)
     p[_P_RADIUS], p[_P_CX], p[_P_CA], p[_P_MU], p[_P_FLOOR] = radius, cx, ca, mu, vehicle.rolling_speed_floor
     p[_P_MASS], p[_P_IZ], p[_P_RR], p[_P_INV_RRV] = m, iz, rr, 1.0 / vehicle.rolling_resistance_speed
-    p[_P_GRADE], p[_P_GN] = g * math.sin(physics.terrain_grade), g * cos_grade
+    p[_P_GPX], p[_P_GPY], p[_P_GN] = -g * sg, -g * cg * sb, g * cos_grade
+    p[_P_BULL], p[_P_INV_VB] = physics.turning_resistance, 1.0 / TURNING_RESISTANCE_SPEED
     p[_P_RELAX] = 1.0 if physics.tire_relaxation else 0.0
     p[_P_INV_LX] = 1.0 / vehicle.longitudinal_relaxation_length
     p[_P_INV_LY] = 1.0 / vehicle.lateral_relaxation_length
@@ -864,6 +949,41 @@ _IMU_COLUMN = {"ax": 0, "ay": 1, "az": 2, "roll_rate": 3, "pitch_rate": 4, "yaw_
 _BODY_RATE_CHANNELS = ("roll_rate", "pitch_rate")
 
 
+#: Sensor parameters that act on one channel only: parameter → channel.
+_SENSOR_CHANNEL = {
+    **{f"accel_bias_{axis}": f"a{axis}" for axis in "xyz"},
+    **{f"accel_scale_{axis}": f"a{axis}" for axis in "xyz"},
+    "gyro_bias": "yaw_rate",
+    "gyro_bias_x": "roll_rate",
+    "gyro_bias_y": "pitch_rate",
+    "gyro_scale": "yaw_rate",
+}
+
+
+def _restrict_to_channels(
+    candidates: Mapping[str, Candidate], channels: Sequence[str], notes: list[str]
+) -> dict[str, Candidate]:
+    """The candidates without the sensor parameters of channels the model does not compare.
+
+    A bias or scale of an axis the bag does not measure (or the replay does not
+    predict) has no effect on any residual: fitting it would only add an
+    unidentifiable parameter (and its penalty). An effect left without
+    parameters (it had some) is dropped; both are noted for the report.
+    """
+    out: dict[str, Candidate] = {}
+    for name, candidate in candidates.items():
+        keep = tuple(p for p in candidate.parameters if _SENSOR_CHANNEL.get(p.name, channels[0]) in channels)
+        dropped = [p.name for p in candidate.parameters if p not in keep]
+        if dropped and not keep:
+            notes.append(f"{name} not offered: its channels are not compared ({', '.join(dropped)})")
+            continue
+        if dropped:
+            notes.append(f"{name}: {', '.join(dropped)} not fitted (channel not compared)")
+            candidate = replace(candidate, parameters=keep)
+        out[name] = candidate
+    return out
+
+
 class SkidSteerReplay:
     """:class:`~terrain_estimation.sim2real.model.ReplayModel` of one skid-steer bag (module docstring)."""
 
@@ -876,6 +996,8 @@ class SkidSteerReplay:
     regimes: Mapping[str, tuple[FloatArray, FloatArray]]
     warmup: float
     notes: list[str]
+    #: Per channel, the samples inside the model's domain (set when some are not: model.py "valid").
+    valid: Mapping[str, NDArray[np.bool_]]
 
     def __init__(
         self,
@@ -940,7 +1062,17 @@ class SkidSteerReplay:
                 self.notes.append(
                     "load_transfer_dynamics not offered: the vehicle config has no suspension (rigid chassis)"
                 )
-        self.candidates = dict(candidates)
+        self.candidates = _restrict_to_channels(candidates, self._channel_names, self.notes)
+        if "wheel_speed_delay" in self.candidates:
+            # The IMU's last d seconds follow wheel speeds the bag no longer holds: with the encoder-stream delay
+            # at its upper bound they cannot be predicted by any model; they are left out of every fit and score.
+            longest = max(p.bounds[1] for p in self.candidates["wheel_speed_delay"].parameters)
+            inside = data.t <= data.t[-1] - longest
+            self.valid = {name: inside for name in self._channel_names}
+            self.notes.append(
+                f"last {longest:g} s left out: a wheel-encoder stream delayed by up to {longest:g} s "
+                "(wheel_speed_delay) leaves the IMU's last samples without wheel speeds"
+            )
         speed = vehicle.wheel_radius * 0.5 * np.abs(data.omega[:, 0] + data.omega[:, 1])
         encoder_rate = vehicle.wheel_radius * (data.omega[:, 1] - data.omega[:, 0]) / vehicle.track
         self.regimes = {
@@ -966,8 +1098,8 @@ class SkidSteerReplay:
 
     def _physics(
         self, effects: Mapping[str, Mapping[str, float]], nuisance: Mapping[str, float]
-    ) -> tuple[Physics, float, FloatArray, float]:
-        """(dynamic physics, gyro bias, accel bias (3,), delay) of an effects/nuisance mapping."""
+    ) -> tuple[Physics, Sensing]:
+        """(dynamic physics, sensor post-processing) of an effects/nuisance mapping."""
         unknown = sorted(set(effects) - set(self.candidates))
         if unknown:
             raise ValueError(f"unknown effect(s) {unknown} for this replay; known: {sorted(self.candidates)}")
@@ -985,11 +1117,24 @@ class SkidSteerReplay:
             yaw_inertia_factor=float(nuisance.get("yaw_inertia_scale", 1.0)),
             rolling_resistance=float(nuisance["rolling_resistance"]) if "rolling_resistance" in nuisance else None,
             terrain_grade=value("terrain_grade", "terrain_grade", 0.0),
+            terrain_bank=value("terrain_grade", "terrain_bank", 0.0),
+            turning_resistance=value("turning_resistance", "turning_resistance", 0.0),
             load_transfer_dynamics="load_transfer_dynamics" in effects,
             tire_relaxation="tire_relaxation" in effects,
         )
-        bias = np.array([value("accel_bias", f"accel_bias_{axis}", 0.0) for axis in "xyz"])
-        return physics, value("gyro_bias", "gyro_bias", 0.0), bias, value("sensor_delay", "sensor_delay", 0.0)
+        sensing = Sensing(
+            shift=value("sensor_delay", "sensor_delay", 0.0) - value("wheel_speed_delay", "wheel_speed_delay", 0.0),
+            scale=np.array(
+                [value("accel_scale", f"accel_scale_{axis}", 0.0) for axis in "xyz"]
+                + [0.0, 0.0, value("gyro_scale", "gyro_scale", 0.0)]
+            ),
+            bias=np.array(
+                [value("accel_bias", f"accel_bias_{axis}", 0.0) for axis in "xyz"]
+                + [value("gyro_bias", "gyro_bias_x", 0.0), value("gyro_bias", "gyro_bias_y", 0.0)]
+                + [value("gyro_bias", "gyro_bias", 0.0)]
+            ),
+        )
+        return physics, sensing
 
     def _dynamic(self, physics: Physics, omega: FloatArray | None = None) -> FloatArray:
         if omega is not None:
@@ -1006,19 +1151,9 @@ class SkidSteerReplay:
         return hit
 
     def imu(self, effects: Mapping[str, Mapping[str, float]], nuisance: Mapping[str, float]) -> FloatArray:
-        """Predicted IMU (M, 6) with biases and delay applied."""
-        physics, gyro_bias, accel_bias, delay = self._physics(effects, nuisance)
-        imu = self._dynamic(physics)
-        if delay > 0.0:
-            t = self.data.t
-            # The IMU reading `delay` ago, linear between samples; before the first sample the first reading
-            # (the plant holds its t = 0 reading).
-            imu = np.column_stack([np.interp(t - delay, t, imu[:, j]) for j in range(imu.shape[1])])
-        else:
-            imu = imu.copy()
-        imu[:, 0:3] += accel_bias
-        imu[:, 5] += gyro_bias
-        return imu
+        """Predicted IMU (M, 6) with the stream delays, scale factors and biases applied (:class:`Sensing`)."""
+        physics, sensing = self._physics(effects, nuisance)
+        return sensing.apply(self.data.t, self._dynamic(physics))
 
     def predict(
         self, effects: Mapping[str, Mapping[str, float]], nuisance: Mapping[str, float]

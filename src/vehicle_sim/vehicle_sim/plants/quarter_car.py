@@ -268,8 +268,8 @@ QUARTER_CAR_EFFECTS: Mapping[str, tuple[str, ...]] = MappingProxyType(
     {
         "accel_bias": ("accel_bias_body", "accel_bias_wheel"),
         "accel_scale": ("accel_scale_body", "accel_scale_wheel"),
-        "sensor_delay": ("sensor_delay",),
-        "nonlinear_soil": ("soil_exponent",),
+        "sensor_delay": ("sensor_delay", "sensor_delay_body", "sensor_delay_wheel", "sensor_delay_profile"),
+        "nonlinear_soil": ("soil_exponent", "soil_origin_ratio"),
         "wheel_liftoff": ("wheel_liftoff",),
         "suspension_friction": ("suspension_friction",),
         "tire_damping": ("tire_damping",),
@@ -282,6 +282,7 @@ QUARTER_CAR_EFFECTS: Mapping[str, tuple[str, ...]] = MappingProxyType(
 LRV_IGNORED_EFFECTS: tuple[str, ...] = (
     "accel_bias_wheel",
     "accel_scale_wheel",
+    "sensor_delay_wheel",
     "suspension_friction",
     "tire_damping",
 )
@@ -299,9 +300,15 @@ class QuarterCarEffects:
     apply to the LRV and its simulator raises ValueError when they are set.
     :data:`QUARTER_CAR_EFFECTS` maps the catalogue names to the fields.
 
-    Accelerometer model (body and wheel alike)::
+    Accelerometer model (body and wheel alike; d_c the stream's own latency)::
 
-        reading(t) = (1 + accel_scale) · (ÿ + g)(t − sensor_delay) + accel_bias + noise(t)
+        reading(t) = (1 + accel_scale) · (ÿ + g)(t − sensor_delay − d_c) + accel_bias + noise(t)
+
+    Each sensor stream has its own latency (a real latency sits on one
+    driver, bus or filter, not on the whole vehicle): ``sensor_delay_body``,
+    ``sensor_delay_wheel`` and ``sensor_delay_profile``; ``sensor_delay`` is
+    a latency common to both accelerometers (kept for the ROS adapter's
+    parameter). Only differences between streams are observable in a bag.
 
     Attributes:
         accel_bias_body: Constant bias of the body accelerometer (m/s²).
@@ -316,6 +323,15 @@ class QuarterCarEffects:
             integration steps shifts exactly and any other delay is accurate
             to a fraction of a per cent up to ~50 Hz. Before the run has lasted
             the delay, the t = 0 value is repeated.
+        sensor_delay_body: Extra latency of the body accelerometer alone (s),
+            0–1 s, added to ``sensor_delay`` (same interpolation).
+        sensor_delay_wheel: Extra latency of the wheel accelerometer alone (s),
+            0–1 s; 2-DOF only.
+        sensor_delay_profile: Latency of the profile sampler (s), 0–1 s: a
+            reading taken at time τ (the road under the sensor at s(τ)) is
+            held in a buffer and delivered, stamped τ + d, with the sensor
+            period in which τ + d falls. The first d seconds of the run
+            deliver no profile reading.
         soil_exponent: Bekker-type pressure–sinkage exponent n (–). The soil
             force is F = k_s z₀ (z/z₀)ⁿ, z the total soil sinkage and
             z₀ = W/k_s the static one (W the static load), in series with the
@@ -325,6 +341,20 @@ class QuarterCarEffects:
             off (linear soil); otherwise 0.2 ≤ n ≤ 3. For z < 0 the law is
             continued as an odd function (the soil pulls, like the paper's
             linear spring) unless ``wheel_liftoff`` is on.
+        soil_origin_ratio: ζ (–), the second shape parameter of the
+            nonlinear soil: the power law's origin lies ζ z₀ below the static
+            point instead of z₀ (a pre-consolidated or crusted soil, a rut
+            reloaded by earlier passes: the pressure–sinkage curve through
+            the operating point does not start at the static sinkage).
+            With δ the soil's compression beyond static::
+
+                F(δ) = W + W ζ [σ(1 + δ/(ζ z₀))ⁿ − 1]
+
+            so the stiffness at the static point stays n·k_s for every ζ,
+            the curvature is n(n − 1) k_s / (ζ z₀): small ζ makes the same
+            n strongly nonlinear about the operating point, large ζ nearly
+            linear. ζ = 1 is the Bekker-type law above exactly; 0.05 ≤ ζ ≤ 20;
+            ignored (and not counted as active) when the soil is linear.
         wheel_liftoff: Unilateral contact: the total ground force
             W + F_d is clipped at 0 (the wheel leaves the ground). Also
             reachable through ``Scenario.wheel_liftoff`` (kept for backward
@@ -354,7 +384,11 @@ class QuarterCarEffects:
     accel_scale_body: float = 0.0
     accel_scale_wheel: float = 0.0
     sensor_delay: float = 0.0
+    sensor_delay_body: float = 0.0
+    sensor_delay_wheel: float = 0.0
+    sensor_delay_profile: float = 0.0
     soil_exponent: float = 0.0
+    soil_origin_ratio: float = 1.0
     wheel_liftoff: bool = False
     suspension_friction: float = 0.0
     tire_damping: float = 0.0
@@ -376,11 +410,14 @@ class QuarterCarEffects:
         for name in ("accel_scale_body", "accel_scale_wheel"):
             if not -1.0 < number(name) < 1.0:
                 raise ValueError(f"{owner}.{name} must be in (−1, 1), got {getattr(self, name)}")
-        if not 0.0 <= number("sensor_delay") <= 1.0:
-            raise ValueError(f"{owner}.sensor_delay must be in [0, 1] s, got {self.sensor_delay}")
+        for name in ("sensor_delay", "sensor_delay_body", "sensor_delay_wheel", "sensor_delay_profile"):
+            if not 0.0 <= number(name) <= 1.0:
+                raise ValueError(f"{owner}.{name} must be in [0, 1] s, got {getattr(self, name)}")
         n = number("soil_exponent")
         if not (n == 0.0 or 0.2 <= n <= 3.0):
             raise ValueError(f"{owner}.soil_exponent must be 0 (off) or in [0.2, 3], got {n}")
+        if not 0.05 <= number("soil_origin_ratio") <= 20.0:
+            raise ValueError(f"{owner}.soil_origin_ratio must be in [0.05, 20], got {self.soil_origin_ratio}")
         if not isinstance(self.wheel_liftoff, bool | np.bool_):
             raise ValueError(f"{owner}.wheel_liftoff must be a bool, got {self.wheel_liftoff!r}")
         object.__setattr__(self, "wheel_liftoff", bool(self.wheel_liftoff))
@@ -410,8 +447,13 @@ class QuarterCarEffects:
         return tuple(
             name
             for name in self.__dataclass_fields__
-            if getattr(self, name) != getattr(reference, name) and (name != "soil_exponent" or self.nonlinear_soil)
+            if getattr(self, name) != getattr(reference, name)
+            and (name not in ("soil_exponent", "soil_origin_ratio") or self.nonlinear_soil)
         )
+
+    def accelerometer_delays(self) -> tuple[float, float]:
+        """Total latency (s) of the (body, wheel) accelerometers: the common one plus each stream's own."""
+        return self.sensor_delay + self.sensor_delay_body, self.sensor_delay + self.sensor_delay_wheel
 
     @property
     def active_effects(self) -> tuple[str, ...]:
@@ -866,14 +908,18 @@ def _advance_lrv(
     return _rk4_one_dof(acceleration, state, substeps, dt, record)
 
 
-def _bekker_chain_force(deflection: float, series_stiffness: float, k_s: float, load: float, n: float) -> float:
+def _bekker_chain_force(
+    deflection: float, series_stiffness: float, k_s: float, load: float, n: float, origin: float = 1.0
+) -> float:
     """Dynamic force F_d (N) of a linear spring in series with the Bekker-type soil.
 
-    The chain carries the total force F = W + F_d; the spring deflects by F/k,
-    the soil sinks to z = z₀ σ(F/W)^(1/n) (σ: odd continuation), z₀ = W/k_s.
-    Solves (F − W)/k + z₀ (σ(F/W)^(1/n) − 1) = deflection, deflection the
-    chain's compression beyond static (h − y), by safeguarded Newton in
-    x = F/W (the left side increases strictly with x).
+    The chain carries the total force F = W + F_d; the spring deflects by F/k.
+    The soil (:class:`QuarterCarEffects` ``soil_exponent`` n, ``soil_origin_ratio`` ζ)
+    compresses beyond static by δ = ζ z₀ (σ(1 + (F/W − 1)/ζ)^(1/n) − 1)
+    (σ: odd continuation), z₀ = W/k_s; ζ = 1: z = z₀ σ(F/W)^(1/n).
+    Solves (F − W)/k + δ = deflection, deflection the chain's compression
+    beyond static (h − y), by safeguarded Newton in x = F/W (the left side
+    increases strictly with x).
     """
     if load <= 0.0:
         # No static sinkage to scale the law around: fall back to the linear chain.
@@ -881,10 +927,14 @@ def _bekker_chain_force(deflection: float, series_stiffness: float, k_s: float, 
     ratio = k_s / series_stiffness  # (k_s/k): the spring's share in units of z₀
     target = deflection * k_s / load  # deflection / z₀
     inv_n = 1.0 / n
+    zeta = origin
 
     def residual(x: float) -> float:
-        root = abs(x) ** inv_n
-        return ratio * (x - 1.0) + math.copysign(root, x) - 1.0 - target
+        if zeta == 1.0:
+            root = abs(x) ** inv_n
+            return ratio * (x - 1.0) + math.copysign(root, x) - 1.0 - target
+        u = 1.0 + (x - 1.0) / zeta
+        return ratio * (x - 1.0) + zeta * (math.copysign(abs(u) ** inv_n, u) - 1.0) - target
 
     x = 1.0 + target / (1.0 + ratio)  # the linear chain's answer
     f = residual(x)
@@ -907,7 +957,7 @@ def _bekker_chain_force(deflection: float, series_stiffness: float, k_s: float, 
             lo = x
         else:
             hi = x
-        ax = abs(x)
+        ax = abs(1.0 + (x - 1.0) / zeta) if zeta != 1.0 else abs(x)
         slope = ratio + inv_n * ax ** (inv_n - 1.0) if ax > 0.0 else math.inf
         x_new = x - f / slope if math.isfinite(slope) else 0.5 * (lo + hi)
         if not lo < x_new < hi:
@@ -926,11 +976,12 @@ class _Dynamics:
     soil_exponent: float  # 0: linear soil
     friction: float  # F_c (N)
     tire_damping: float  # c_t (N·s/m)
+    soil_origin: float = 1.0  # ζ of the nonlinear soil
 
     def ground(self, deflection: float, kt: float, k_s: float, series: float, load: float) -> float:
         """Spring part of the dynamic ground force (N) for chain compression ``deflection`` (m)."""
         if self.soil_exponent:
-            return _bekker_chain_force(deflection, series, k_s, load, self.soil_exponent)
+            return _bekker_chain_force(deflection, series, k_s, load, self.soil_exponent, self.soil_origin)
         return kt * deflection
 
 
@@ -1100,6 +1151,7 @@ class QuarterCarSimulator:
             soil_exponent=effects.soil_exponent if effects.nonlinear_soil else 0.0,
             friction=effects.suspension_friction,
             tire_damping=effects.tire_damping,
+            soil_origin=effects.soil_origin_ratio if effects.nonlinear_soil else 1.0,
         )
         self._nominal_dynamics = self._dynamics == _Dynamics(0.0, 0.0, 0.0)
         if self._dynamics.friction and isinstance(self._plant, QuarterCarVehicle):
@@ -1127,9 +1179,14 @@ class QuarterCarSimulator:
         # Noise-free true accelerations (body, wheel) at every RK4 step from t = 0, for the delay:
         # the delayed reading is interpolated on the integration grid, not between sensor samples
         # (linear interpolation at the sensor rate would low-pass the signal: −5 % at 10 Hz, 100 Hz).
-        self._delay_lag = effects.sensor_delay / self._dt
-        self._accel_history: deque[tuple[float, float]] = deque(maxlen=int(math.ceil(self._delay_lag)) + 2)
-        self._record: list[tuple[float, float]] | None = [] if effects.sensor_delay else None
+        # Each accelerometer has its own lag (sensor_delay plus the stream's own latency).
+        body_delay, wheel_delay = effects.accelerometer_delays()
+        self._delay_lags = (body_delay / self._dt, wheel_delay / self._dt)
+        self._delaying = body_delay > 0.0 or wheel_delay > 0.0
+        self._accel_history: deque[tuple[float, float]] = deque(maxlen=int(math.ceil(max(self._delay_lags))) + 2)
+        self._record: list[tuple[float, float]] | None = [] if self._delaying else None
+        # Profile readings taken but not yet delivered (sensor_delay_profile): (taken at, distance, elevation).
+        self._profile_buffer: deque[tuple[float, float, float]] = deque()
 
     @property
     def t(self) -> float:
@@ -1260,7 +1317,7 @@ class QuarterCarSimulator:
             wheel_angle=distance / radius,
             wheel_rate=speed / radius,
             speed=speed,
-            profile=self._profile_readings(t0, t1, constant_speed, stage_distance, road),
+            profile=self._deliver_profile(self._profile_readings(t0, t1, constant_speed, stage_distance, road), t1),
             truth=truth,
         )
 
@@ -1274,7 +1331,7 @@ class QuarterCarSimulator:
         """The accelerometer readings: true specific force, delayed, scaled, biased, plus noise."""
         effects = self.scenario.effects
         g = self.scenario.gravity
-        if not (effects.sensor_delay or _ACCEL_FIELDS.intersection(effects.active)):
+        if not (self._delaying or _ACCEL_FIELDS.intersection(effects.active)):
             # Nominal sensors: the same arithmetic as always (bit-identical output).
             body = float(truth.body_acceleration) + g + float(noise[0])
             wheel = (
@@ -1290,14 +1347,14 @@ class QuarterCarSimulator:
         return body, (1.0 + effects.accel_scale_wheel) * wheel_sf + effects.accel_bias_wheel + float(noise[1])
 
     def _delayed(self, current: tuple[float, float]) -> tuple[float, float]:
-        """The specific forces ``sensor_delay`` ago, linearly interpolated on the RK4 grid.
+        """The (body, wheel) specific forces each its own latency ago, linearly interpolated on the RK4 grid.
 
         The history holds the accelerations at the start of every RK4 step
         since t = 0 (recorded by the integrator); ``current`` is the value at
-        the end of this sensor period. Before the run has lasted the delay,
-        the t = 0 value is returned.
+        the end of this sensor period. Before the run has lasted a channel's
+        delay, its t = 0 value is returned.
         """
-        if not self.scenario.effects.sensor_delay:
+        if not self._delaying:
             return current
         g = self.scenario.gravity
         history = self._accel_history
@@ -1306,22 +1363,39 @@ class QuarterCarSimulator:
             history.extend((a + g, (b + g) if two else 0.0) for a, b in self._record)
             self._record.clear()
         sequence = list(history) + [current]
-        lag = self._delay_lag
-        whole = int(math.floor(lag + 1e-9))
-        frac = max(lag - whole, 0.0)
-        if frac <= 1e-9:
-            frac = 0.0
-        needed = whole + (1 if frac else 0)
-        if needed > len(sequence) - 1:
-            return sequence[0]
-        newer = sequence[-1 - whole]
-        if not frac:
-            return newer
-        older = sequence[-2 - whole]
-        return (
-            (1.0 - frac) * newer[0] + frac * older[0],
-            (1.0 - frac) * newer[1] + frac * older[1],
-        )
+        out = []
+        for channel, lag in enumerate(self._delay_lags):
+            whole = int(math.floor(lag + 1e-9))
+            frac = max(lag - whole, 0.0)
+            if frac <= 1e-9:
+                frac = 0.0
+            needed = whole + (1 if frac else 0)
+            if needed > len(sequence) - 1:
+                out.append(sequence[0][channel])
+                continue
+            newer = sequence[-1 - whole][channel]
+            if not frac:
+                out.append(newer)
+                continue
+            older = sequence[-2 - whole][channel]
+            out.append((1.0 - frac) * newer + frac * older)
+        return out[0], out[1]
+
+    def _deliver_profile(self, readings: ProfileReadings, t1: float) -> ProfileReadings:
+        """The profile sampler's latency: buffer the readings taken, deliver those due by ``t1`` (stamped when due)."""
+        delay = self.scenario.effects.sensor_delay_profile
+        if not delay:
+            return readings
+        for t, s, h in zip(readings.t.tolist(), readings.distance.tolist(), readings.elevation.tolist(), strict=True):
+            self._profile_buffer.append((t, s, h))
+        due = []
+        while self._profile_buffer and self._profile_buffer[0][0] + delay <= t1 + 1e-9:
+            due.append(self._profile_buffer.popleft())
+        if not due:
+            empty = np.empty(0)
+            return ProfileReadings(empty, empty.copy(), empty.copy())
+        taken, distance, elevation = (np.array(column, dtype=float) for column in zip(*due, strict=True))
+        return ProfileReadings(taken + delay, distance, elevation)
 
     def _truth(
         self, h: float, h_rate: float, h_tire: float, h_tire_rate: float, kt: float, segment: int

@@ -14,8 +14,11 @@ model proves nothing):
 * switchable *effects* (:class:`SkidSteerEffects`, CONTRACT.md "Nominal model
   and effects"): sprung-mass roll/pitch dynamics that make the vertical loads
   come from suspension forces and lag the accelerations, first-order tire
-  force relaxation, sensor biases and delay, wrong rolling radius, friction
-  and cornering-stiffness changes, a road grade;
+  force relaxation, sensor biases and scale factors per axis, IMU and
+  wheel-encoder stream delays (each buffered on its own), wrong rolling
+  radius, friction and cornering-stiffness changes, a road grade (helical)
+  or a world-fixed ground plane in grade and bank, the lateral soil
+  resistance of deformable ground (skid-steer turning resistance);
 * a tire law of its own (:mod:`vehicle_sim.plants.tire_laws`,
   ``SkidSteerVehicle.tire_law``): the truth (:meth:`SkidSteerVehicle.truth_default`,
   the manoeuvre builders' default vehicle) runs a
@@ -102,6 +105,7 @@ from vehicle_sim.plants.skid_steer_ground import GroundContact, SkidSteerGround,
 from vehicle_sim.plants.tire_laws import TIRE_LAWS, MagicFormulaTire, MagicFormulaWheels, brush_forces
 
 __all__ = [
+    "TURNING_RESISTANCE_SPEED",
     "WHEEL_NAMES",
     "MANOEUVRES",
     "GnssReading",
@@ -127,6 +131,12 @@ Array = NDArray[np.float64]
 
 KMH = 1.0 / 3.6
 """One km/h in m/s."""
+
+TURNING_RESISTANCE_SPEED = 0.05
+"""Lateral contact speed v_b (m/s) over which the soil's lateral resistance of the effect
+``turning_resistance`` builds up (``tanh(v_y / v_b)``): a few centimetres per second, the lateral
+slip speed at which a rut's shear resistance is mobilised (Janosi–Hanamoto shear deformation
+K ≈ 1–5 cm over a contact passage of ≈ 0.5 s)."""
 
 
 def _check_finite(owner: str, name: str, value: float) -> None:
@@ -414,6 +424,37 @@ class SkidSteerEffects:
             heading climbs by this angle (a helical ramp), so gravity has the
             component −g sin γ along the body x axis and g cos γ normal to the
             road. The pose stays in the road plane.
+        gyro_bias_xy: constant roll- and pitch-gyro biases (x, y) (rad/s).
+        accel_scale: accelerometer scale-factor errors (x, y, z): each axis
+            reads (1 + s) × its true specific force (before the bias).
+        gyro_scale: yaw-gyro scale-factor error s: it reads (1 + s) × r.
+        wheel_speed_delay: latency of the wheel-encoder stream (s): the
+            ``joint_states`` report stamped t carries the encoder counts of
+            t − d (the motor angle at t − d, linear between integration
+            steps, quantised to the encoder step), its velocity the difference
+            of two such counts over the report period. Before t = 0 the angle
+            is extrapolated at the initial speed (the vehicle was already
+            moving at it). Relative to ``sensor_delay`` (the IMU stream) only
+            the difference of the two is observable in a bag.
+        terrain_slope: (grade, bank) (rad) of a plane fixed in the world, seen
+            at the start heading: grade > 0 rises ahead, bank > 0 the left
+            side up. The plane is :class:`~vehicle_sim.plants.skid_steer_ground.SkidSteerGround`
+            with ``grade``, ``cross_slope`` (the vehicle starts at heading 0),
+            so gravity in the body frame turns with the heading; on a scenario
+            ground that is already inclined it is refused.
+        turning_resistance: lateral soil resistance coefficient c_b (–) of
+            deformable ground (skid-steer turning resistance): a wheel sliding
+            sideways pushes soil aside (Bekker's bulldozing of the sunk tire's
+            side wall) and shears the rut, a force
+            ``F_b = −c_b F_z tanh(v_y / v_b)`` per wheel against its lateral
+            contact velocity v_y (v_b = :data:`TURNING_RESISTANCE_SPEED`),
+            on top of the tire force. In a skid-steer turn it is a resistive
+            yaw moment Σ x_i F_b,i: the vehicle turns less for the same
+            side-speed difference. c_b grows with sinkage: ≈ 0 on firm
+            ground, 0.1–0.3 on loam and sand, up to ≈ 1 in deep snow or sand
+            (Wong, *Theory of Ground Vehicles*, ch. 7: lateral resistance
+            coefficients μ_t of tracks 0.5–0.9 on soils against 0.4–0.6 on
+            firm ground).
     """
 
     load_transfer_dynamics: bool = False
@@ -425,9 +466,28 @@ class SkidSteerEffects:
     friction_change: float = 1.0
     cornering_stiffness_change: float = 1.0
     terrain_grade: float = 0.0
+    gyro_bias_xy: tuple[float, float] = (0.0, 0.0)
+    accel_scale: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gyro_scale: float = 0.0
+    wheel_speed_delay: float = 0.0
+    terrain_slope: tuple[float, float] = (0.0, 0.0)
+    turning_resistance: float = 0.0
 
     def __post_init__(self) -> None:
         owner = "SkidSteerEffects"
+        for name, size in (("gyro_bias_xy", 2), ("accel_scale", 3), ("terrain_slope", 2)):
+            values = tuple(float(v) for v in getattr(self, name))
+            if len(values) != size or not all(math.isfinite(v) for v in values):
+                raise ValueError(f"{owner}.{name} must be {size} finite values, got {getattr(self, name)}")
+            object.__setattr__(self, name, values)
+        if not all(-1.0 < v < 1.0 for v in self.accel_scale):
+            raise ValueError(f"{owner}.accel_scale must lie in (−1, 1) per axis, got {self.accel_scale}")
+        if not (math.isfinite(self.gyro_scale) and -1.0 < self.gyro_scale < 1.0):
+            raise ValueError(f"{owner}.gyro_scale must be in (−1, 1), got {self.gyro_scale}")
+        _check_non_negative(owner, "wheel_speed_delay", self.wheel_speed_delay)
+        _check_non_negative(owner, "turning_resistance", self.turning_resistance)
+        if not all(abs(v) < math.pi / 4.0 for v in self.terrain_slope):
+            raise ValueError(f"{owner}.terrain_slope must be in (−π/4, π/4) rad per axis, got {self.terrain_slope}")
         bias = tuple(float(b) for b in self.accel_bias)
         if len(bias) != 3 or not all(math.isfinite(b) for b in bias):
             raise ValueError(f"{owner}.accel_bias must be 3 finite values (x, y, z), got {self.accel_bias}")
@@ -1080,6 +1140,23 @@ class _Evaluation:
     normal_gravity: float
 
 
+def effective_ground(scenario: SkidSteerScenario) -> SkidSteerGround:
+    """The scenario's ground with the effect ``terrain_slope`` (grade, bank at the start heading) applied.
+
+    Raises:
+        ValueError: the effect asks for a slope on a ground that is already inclined.
+    """
+    grade, bank = scenario.effects.terrain_slope
+    if grade == 0.0 and bank == 0.0:
+        return scenario.ground
+    if not scenario.ground.level:
+        raise ValueError(
+            f"SkidSteerEffects.terrain_slope {scenario.effects.terrain_slope} on a ground already inclined "
+            f"(grade {scenario.ground.grade}, cross_slope {scenario.ground.cross_slope}): give one of the two"
+        )
+    return replace(scenario.ground, grade=grade, cross_slope=bank)
+
+
 class _EquationsOfMotion:
     """Planar 3-DOF body, wheel sides, sprung roll/pitch, tire lag (MODELS.md B.4–B.6 plus effects).
 
@@ -1176,8 +1253,10 @@ class _EquationsOfMotion:
         # Ground: surfaces under the wheels (the vehicle's own unless patched) and gravity on the slope.
         base = Surface(name="vehicle", friction=self.mu, rolling_resistance=self.rr)
         self.ground = GroundContact(
-            scenario.ground, base, effects.friction_change, xw, yw, p.gravity, effects.terrain_grade
+            effective_ground(scenario), base, effects.friction_change, xw, yw, p.gravity, effects.terrain_grade
         )
+        self.turning_resistance = effects.turning_resistance
+        self.inverse_turning_speed = 1.0 / TURNING_RESISTANCE_SPEED
         self.gravity_x = -self.grade_accel
         # The tire law: the plant's magic formula (stiffnesses C_x, C_α at m g / 6) or the brush (B.4).
         self.tire = (
@@ -1265,7 +1344,11 @@ class _EquationsOfMotion:
             steady_fx, steady_fy = self._tire_forces(omega, cvx, cvy, load, mu, scale)
             fx, fy = steady_fx, steady_fy
         resistance = resistance_per_load * load
-        sum_fx, sum_fy, yaw_moment = (self.force_map @ np.concatenate((fx - resistance, fy))).tolist()
+        lateral = fy
+        if self.turning_resistance > 0.0:
+            # Lateral soil resistance (effect turning_resistance): against each wheel's lateral sliding, ∝ its load.
+            lateral = fy - self.turning_resistance * load * np.tanh(cvy * self.inverse_turning_speed)
+        sum_fx, sum_fy, yaw_moment = (self.force_map @ np.concatenate((fx - resistance, lateral))).tolist()
         f_x = sum_fx / self.mass
         f_y = sum_fy / self.mass
         thrust_l, thrust_r = (self.side_map @ fx).tolist()
@@ -1425,7 +1508,7 @@ class SkidSteerSimulator:
         v0 = scenario.manoeuvre.initial_speed
         state[_VX] = v0
         state[_OMEGA_L] = state[_OMEGA_R] = v0 / self._equations.radius
-        if scenario.effects.tire_relaxation and not scenario.ground.level:
+        if scenario.effects.tire_relaxation and not self._equations.ground.level:
             # On a slope the lagged lateral forces start holding the vehicle (shares ∝ the static loads), not at 0.
             _, gravity_y, _ = self._equations.ground.gravity(1.0, 0.0)
             static = self._equations.static_load_per_gravity
@@ -1443,6 +1526,13 @@ class SkidSteerSimulator:
         delay_samples = scenario.effects.sensor_delay / self._period
         self._imu_history: deque[Array] = deque(maxlen=int(math.ceil(delay_samples)) + 2)
         self._imu_history.append(self._measure(state, self._equations.evaluate(state, (0.0, 0.0), self._hold))[0])
+        # True motor angles at the sensor rate, from t = 0, for the encoder-stream delay (wheel_speed_delay).
+        wheel_delay_samples = scenario.effects.wheel_speed_delay / self._period
+        self._angle_history: deque[Array] = deque(maxlen=int(math.ceil(wheel_delay_samples)) + 3)
+        self._angle_history.append(ratio * state[_ANGLE_L : _ANGLE_R + 1].copy())
+        self._initial_motor_speed = ratio * state[_OMEGA_L : _OMEGA_R + 1].copy()
+        if scenario.effects.wheel_speed_delay > 0.0:
+            self._previous_position = self._delayed_position(0.0)
 
     # --- public state -------------------------------------------------------
 
@@ -1559,6 +1649,26 @@ class SkidSteerSimulator:
         )
         return imu, roll_accel, pitch_accel
 
+    def _delayed_position(self, t: float) -> Array:
+        """Quantised motor angles (rad) the encoders counted ``wheel_speed_delay`` before ``t``.
+
+        The true motor angle at t − d, linear between the sensor-rate samples of
+        ``_angle_history`` (the newest at ``t``); before t = 0 extrapolated at the
+        initial motor speed.
+        """
+        lag = self.scenario.effects.wheel_speed_delay / self._period
+        history = self._angle_history
+        newest = len(history) - 1
+        back = newest - lag  # fractional index into history of t − d
+        if back < 0.0:
+            oldest_t = t - newest * self._period
+            angle = history[0] + self._initial_motor_speed * (t - self.scenario.effects.wheel_speed_delay - oldest_t)
+        else:
+            i = int(math.floor(back))
+            frac = back - i
+            angle = history[i] if frac <= 1e-12 or i + 1 > newest else (1.0 - frac) * history[i] + frac * history[i + 1]
+        return np.floor(np.asarray(angle) / self._encoder_step) * self._encoder_step
+
     def _delayed_imu(self, current: Array) -> Array:
         """IMU reading ``sensor_delay`` ago, linearly interpolated; the t = 0 reading before that."""
         self._imu_history.append(current)
@@ -1599,11 +1709,22 @@ class SkidSteerSimulator:
         effects = self.scenario.effects
         imu_true, _, _ = self._measure(state, evaluation)
         imu = self._delayed_imu(imu_true)
-        accel = imu[:3] + np.asarray(effects.accel_bias) + sensors.accel_noise_std * self._accel_rng.standard_normal(3)
-        gyro = imu[3:] + sensors.gyro_noise_std * self._gyro_rng.standard_normal(3)
+        accel = (
+            (1.0 + np.asarray(effects.accel_scale)) * imu[:3]
+            + np.asarray(effects.accel_bias)
+            + sensors.accel_noise_std * self._accel_rng.standard_normal(3)
+        )
+        gyro_true = imu[3:].copy()
+        gyro_true[2] *= 1.0 + effects.gyro_scale
+        gyro = gyro_true + sensors.gyro_noise_std * self._gyro_rng.standard_normal(3)
         gyro[2] += effects.gyro_bias
+        gyro[:2] += np.asarray(effects.gyro_bias_xy)
 
-        position = self._quantised_position(state)
+        if effects.wheel_speed_delay > 0.0:
+            self._angle_history.append(self._ratio * state[_ANGLE_L : _ANGLE_R + 1].copy())
+            position = self._delayed_position(t1)
+        else:
+            position = self._quantised_position(state)
         velocity = (position - self._previous_position) / self._period
         velocity = velocity + sensors.motor_velocity_noise_std * self._velocity_rng.standard_normal(2)
         self._previous_position = position

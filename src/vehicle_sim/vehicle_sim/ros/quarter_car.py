@@ -81,6 +81,25 @@ EFFECT_SPECS_COMMON: tuple[ParamSpec, ...] = (
         read_only=True,
     ),
     ParamSpec(
+        "effects.sensor_delay_body", 0.0, "[s] extra latency of the body accelerometer alone", 0.0, 1.0, read_only=True
+    ),
+    ParamSpec(
+        "effects.sensor_delay_profile",
+        0.0,
+        "[s] latency of the profile sampler (readings buffered, stamped when delivered)",
+        0.0,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "effects.soil_origin_ratio",
+        1.0,
+        "[-] nonlinear soil: origin of the power law zeta z0 below the static point (1: Bekker-type law)",
+        0.05,
+        20.0,
+        read_only=True,
+    ),
+    ParamSpec(
         "effects.soil_exponent",
         0.0,
         "[-] Bekker-type soil exponent n, F = k_s z0 (z/z0)^n about the static sinkage z0; 0 or 1: linear soil (off)",
@@ -123,6 +142,14 @@ EFFECT_SPECS_TWO_DOF: tuple[ParamSpec, ...] = (
         read_only=True,
     ),
     ParamSpec(
+        "effects.sensor_delay_wheel",
+        0.0,
+        "[s] extra latency of the wheel accelerometer alone",
+        0.0,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
         "effects.suspension_friction",
         0.0,
         "[N] Coulomb suspension friction, smoothed F_c tanh(dv / 0.02 m/s); at most ~830 N with 1 ms RK4 steps",
@@ -148,7 +175,11 @@ def make_effects(values: Mapping[str, ParamValue]) -> QuarterCarEffects:
         accel_scale_body=number("accel_scale_body"),
         accel_scale_wheel=number("accel_scale_wheel"),
         sensor_delay=number("sensor_delay"),
+        sensor_delay_body=number("sensor_delay_body"),
+        sensor_delay_wheel=number("sensor_delay_wheel"),
+        sensor_delay_profile=number("sensor_delay_profile"),
         soil_exponent=number("soil_exponent"),
+        soil_origin_ratio=float(values.get("effects.soil_origin_ratio", 1.0)),
         wheel_liftoff=bool(values.get("effects.wheel_liftoff", False)),
         suspension_friction=number("suspension_friction"),
         tire_damping=number("tire_damping"),

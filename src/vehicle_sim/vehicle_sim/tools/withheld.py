@@ -63,7 +63,14 @@ How magnitudes are drawn (:func:`draw_parameter`)
     undulation wavelength) log-uniformly within a factor 2 of the typical,
     clipped to the fit range; the rover's ``soil_change_distance`` (a
     location) so that the front wheel (0.35 m ahead of the body at the
-    start) reaches the change after 15–60 % of the run's travel.
+    start) reaches the change after 15–60 % of the run's travel. Skid steer
+    (issue 22, :func:`_skid_steer_draw`): of a per-axis effect (accelerometer
+    bias and scale, gyro bias, grade/bank) each component is kept with
+    probability ½ (at least one), the others off; a stream delay (IMU or
+    wheel encoders) is drawn log-uniformly over 0.05–0.3 s. Quarter car and
+    LRV (issue 22, :func:`_quarter_car_draw`): one late stream, 0.01–0.3 s;
+    a bias or scale on one or both accelerometers; a stiffening or softening
+    soil (n in 1.2–1.8 or 0.4–0.8, origin ratio ζ in 0.3–3).
 
 Out-of-catalogue effects (:data:`OUT_OF_CATALOGUE`; applied to the adapter's
 messages, no plant change; sample time t from the start of the run)
@@ -80,8 +87,9 @@ messages, no plant change; sample time t from the start of the run)
     ``channel_scale``: a scale error (reading × (1 + s), |s| ∈ [0.1, 0.3],
     random sign) on a channel the catalogue has no scale effect for:
     quarter car/LRV the profile sampler's elevation (``terrain/profile``
-    point.z), skid steer the yaw gyro (angular_velocity.z), rover the
-    velocimeter (twist.linear.x).
+    point.z), skid steer the left side's encoder stream (``joint_states``
+    ``left_motor`` position and velocity; the yaw gyro has the catalogue's
+    ``gyro_scale``), rover the velocimeter (twist.linear.x).
 
 Effect signature (``labels.json`` only: never in the manifest or the bags)
     How much the withheld effect changed what the bag records, so that the
@@ -219,7 +227,9 @@ _SPIKE_MAGNITUDE = {"quarter_car": (5.0, 15.0), "lrv": (5.0, 15.0), "skid_steer"
 _SCALE_CHANNEL = {
     "quarter_car": ("profile", "terrain/profile point.z (profile sampler elevation)"),
     "lrv": ("profile", "terrain/profile point.z (profile sampler elevation)"),
-    "skid_steer": ("imu", "imu angular_velocity.z (yaw gyro)"),
+    # The yaw gyro has a catalogue scale effect (gyro_scale, issue 22): one side's encoder stream instead (a
+    # per-side rolling-radius / encoder-resolution error, which the catalogue's common radius error is not).
+    "skid_steer": ("joint_states", "joint_states left_motor position and velocity (one side's encoder)"),
     "rover": ("velocimeter", "velocimeter twist.linear.x"),
 }
 
@@ -369,7 +379,103 @@ def _draw_effect(
             values[p.name], rules[p.name] = value, {"rule": "location", "travel": travel}
             continue
         values[p.name], rules[p.name] = draw_parameter(p, rng)
+    if vehicle == "skid_steer":
+        _skid_steer_draw(effect, values, rules, rng)
+    if vehicle in ("quarter_car", "lrv"):
+        _quarter_car_draw(vehicle, effect, values, rules, rng)
     return values, rules
+
+
+#: Quarter car / LRV: stream latencies drawn log-uniformly over this range (s; issue 22: up to 0.3 s).
+_QUARTER_CAR_DELAY_RANGE = (0.01, 0.3)
+#: Quarter car / LRV nonlinear soil: |n − 1| drawn log-uniformly in these ranges, stiffening (n > 1) or softening.
+_QUARTER_CAR_SOIL_STIFFENING = (0.2, 0.8)
+_QUARTER_CAR_SOIL_SOFTENING = (0.2, 0.6)
+#: Quarter car / LRV nonlinear soil: origin ratio ζ drawn log-uniformly in this range.
+_QUARTER_CAR_SOIL_ORIGIN = (0.3, 3.0)
+
+
+def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
+    return float(math.exp(rng.uniform(math.log(low), math.log(high))))
+
+
+def _quarter_car_draw(
+    vehicle: str, effect: str, values: dict[str, float], rules: dict[str, dict[str, Any]], rng: np.random.Generator
+) -> None:
+    """Quarter-car / LRV rules on top of :func:`draw_parameter` (in place; issue 22).
+
+    * ``sensor_delay``: one stream is late (a real latency sits on one
+      driver or bus): one of the catalogue's latencies (quarter car: common
+      accelerometer, body, wheel, profile; LRV: body, profile) drawn
+      log-uniformly over :data:`_QUARTER_CAR_DELAY_RANGE`, the others 0.
+    * ``accel_bias``, ``accel_scale`` (quarter car): each sensor's component
+      stays with probability ½ (at least one), the others off.
+    * ``nonlinear_soil``: stiffening (n − 1 log-uniform in
+      :data:`_QUARTER_CAR_SOIL_STIFFENING`) or softening (1 − n in
+      :data:`_QUARTER_CAR_SOIL_SOFTENING`) with equal chance, the origin
+      ratio ζ log-uniform in :data:`_QUARTER_CAR_SOIL_ORIGIN`.
+    """
+    if effect == "sensor_delay":
+        streams = [name for name in values if not (vehicle == "lrv" and name == "sensor_delay")]
+        late = streams[int(rng.integers(len(streams)))]
+        for name in values:
+            values[name] = 0.0
+            rules[name] = {"rule": "off (another stream is late)"}
+        values[late] = _log_uniform(rng, *_QUARTER_CAR_DELAY_RANGE)
+        rules[late] = {"rule": "single_stream", "range": list(_QUARTER_CAR_DELAY_RANGE)}
+    elif effect in ("accel_bias", "accel_scale") and len(values) > 1:
+        names = list(values)
+        keep = [bool(rng.random() < 0.5) for _ in names]
+        if not any(keep):
+            keep[int(rng.integers(len(names)))] = True
+        for name, kept in zip(names, keep, strict=True):
+            if not kept:
+                values[name] = 0.0
+                rules[name] = {"rule": "off (one sensor)"}
+    elif effect == "nonlinear_soil":
+        stiffening = bool(rng.random() < 0.5)
+        span = _QUARTER_CAR_SOIL_STIFFENING if stiffening else _QUARTER_CAR_SOIL_SOFTENING
+        values["soil_exponent"] = 1.0 + (1.0 if stiffening else -1.0) * _log_uniform(rng, *span)
+        rules["soil_exponent"] = {"rule": "stiffening" if stiffening else "softening", "range": list(span)}
+        values["soil_origin_ratio"] = _log_uniform(rng, *_QUARTER_CAR_SOIL_ORIGIN)
+        rules["soil_origin_ratio"] = {"rule": "shape", "range": list(_QUARTER_CAR_SOIL_ORIGIN)}
+
+
+#: Skid steer: effects with one parameter per axis (or stream) of which a real case often has one
+#: dominant component (a bank without a grade, one biased axis).
+_SKID_STEER_PER_AXIS = ("accel_bias", "accel_scale", "gyro_bias", "terrain_grade")
+#: Skid steer: stream latencies, drawn over their whole physical range (issue 22: up to 0.3 s).
+_SKID_STEER_DELAYS = ("sensor_delay", "wheel_speed_delay")
+
+
+def _skid_steer_draw(
+    effect: str, values: dict[str, float], rules: dict[str, dict[str, Any]], rng: np.random.Generator
+) -> None:
+    """Skid-steer rules on top of :func:`draw_parameter` (in place; issue 22).
+
+    * Per-axis effects (:data:`_SKID_STEER_PER_AXIS`): each component stays
+      on with probability ½, at least one (chosen at random) on; the others
+      are set to their off value (``rule`` ``"off (one sensor)"``, as the quarter car's). So the
+      suite holds a bank alone, a grade alone, a bias on one axis.
+    * Stream delays (:data:`_SKID_STEER_DELAYS`): log-uniform between the
+      typical value and the top of the plausible range (0.05–0.3 s), a single stream
+      per bag (the effect names the stream).
+    """
+    parameters = {p.name: p for p in CATALOGUE["skid_steer"][effect].parameters}
+    if effect in _SKID_STEER_PER_AXIS and len(parameters) > 1:
+        names = list(parameters)
+        keep = [bool(rng.random() < 0.5) for _ in names]
+        if not any(keep):
+            keep[int(rng.integers(len(names)))] = True
+        for name, on in zip(names, keep, strict=True):
+            if not on:
+                values[name] = parameters[name].off
+                rules[name] = {"rule": "off (one sensor)"}
+    if effect in _SKID_STEER_DELAYS:
+        for name, p in parameters.items():
+            low, high = abs(p.typical - p.off), p.plausible_range[1] - p.off
+            values[name] = p.off + float(math.exp(rng.uniform(math.log(low), math.log(high))))
+            rules[name] = {"rule": "single_stream", "range": [p.off + low, p.off + high]}
 
 
 def _draw_ooc(vehicle: str, name: str, rng: np.random.Generator) -> dict[str, Any]:
@@ -582,7 +688,11 @@ def _ooc_transform(plan: BagPlan, imu_keys: Sequence[str], rate: float) -> Calla
             if plan.vehicle in ("quarter_car", "lrv"):
                 msg.point.z *= factor
             elif plan.vehicle == "skid_steer":
-                msg.angular_velocity.z *= factor
+                index = list(msg.name).index("left_motor")
+                position, velocity = list(msg.position), list(msg.velocity)
+                position[index] *= factor
+                velocity[index] *= factor
+                msg.position, msg.velocity = position, velocity
             else:
                 msg.twist.linear.x *= factor
 
