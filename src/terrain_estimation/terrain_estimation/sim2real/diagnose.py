@@ -9,6 +9,10 @@ the replay model exposes. For the quarter car and the LRV the estimator runs
 over the bag once: its final k_s starts the replay's ln k_s and its NIS
 (against the χ² band, with whiteness) is reported with the rest.
 
+The config's nominal tolerances (section ``/**/sim2real``,
+:mod:`~terrain_estimation.sim2real.tolerance`) make the uncertain nominal
+parameters nuisance parameters with a prior: a mismatch within them is not a gap.
+
 Only the bag and the vehicle's config are read: nothing of how the bag was made.
 The bag's inputs are checked first (:mod:`~terrain_estimation.sim2real.inputs`:
 the estimators' input checks, plausibility bounds, time gaps); the replay and
@@ -33,6 +37,7 @@ from scipy import stats
 from terrain_estimation.sim2real.attribution import AttributionReport, AttributionSettings, attribute
 from terrain_estimation.sim2real.inputs import GAP_MIN_S, InputReport, screen_bag
 from terrain_estimation.sim2real.model import ReplayModel, usable_mask
+from terrain_estimation.sim2real.tolerance import nuisance_names, tolerances, with_tolerances
 from terrain_estimation.sim2real.where import (
     ChannelReport,
     NisReport,
@@ -304,6 +309,8 @@ def _diagnose(
 
     nis: NisReport | None = None
     notes: list[str] = []
+    # Tolerances of the uncertain nominal parameters (config section /**/sim2real): fitted as nuisance.
+    tolerance_values = tolerances(vehicle, config)
     if vehicle in ("quarter_car", "lrv"):
         from terrain_estimation.tools.estimate import estimate_bag, topic_name
         from terrain_estimation.vehicles import estimator_parameters, get_vehicle
@@ -328,8 +335,14 @@ def _diagnose(
                 f"the estimator produced no usable {topic_name(ns, 'soil_stiffness')} estimate on {bag}"
             )
         model.with_k_s(k_s)  # type: ignore[attr-defined]
+        model = with_tolerances(model, tolerance_values)
     else:
-        model = build_model(bag, vehicle, config=config, namespace=namespace, progress=progress)
+        extra: dict[str, Any] = {}
+        names = nuisance_names(tolerance_values)
+        if vehicle == "skid_steer" and names:
+            extra["nuisance"] = names  # the replay fits them; their priors come from the tolerances
+        model = build_model(bag, vehicle, config=config, namespace=namespace, progress=progress, **extra)
+        model = with_tolerances(model, tolerance_values)
     report = attribute(model, settings, progress=progress)
     say("tabulating where the fitted nominal model disagrees")
     where = where_table(model, report.series["nominal"], settings.where)

@@ -87,6 +87,17 @@ class FitParameter:
         bounds: (low, high), finite, containing ``off``.
         scale: Typical size of a change (the optimiser's variable scaling and
             the offsets of its extra starting points).
+        prior_std: Optional. A Gaussian prior of this standard deviation about
+            ``off``: the fit adds the term ((x − off) / prior_std)² to the
+            training χ². The *nominal tolerance* of an uncertain nominal
+            parameter (a mass, a rolling resistance): within it a mismatch is
+            fitted as a nuisance, not reported as a gap (issue 22, item 2).
+            None (default): no prior, the fit is bounded only.
+        plausible: Optional (low, high) physically plausible range, inside or
+            equal to ``bounds``. A best explanation that needs a value outside
+            it (or at a bound of ``bounds`` other than ``off``) is reported as a
+            structure gap, not as the effect (issue 22, item 3). None: the
+            bounds are the plausible range.
     """
 
     name: str
@@ -94,6 +105,8 @@ class FitParameter:
     off: float
     bounds: tuple[float, float]
     scale: float
+    prior_std: float | None = None
+    plausible: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         lo, hi = (float(v) for v in self.bounds)
@@ -102,6 +115,20 @@ class FitParameter:
         if not (self.scale > 0.0 and np.isfinite(self.scale)):
             raise ValueError(f"FitParameter {self.name!r}: scale must be positive, got {self.scale}")
         object.__setattr__(self, "bounds", (lo, hi))
+        if self.prior_std is not None:
+            if not (float(self.prior_std) > 0.0 and np.isfinite(float(self.prior_std))):
+                raise ValueError(f"FitParameter {self.name!r}: prior_std must be positive, got {self.prior_std}")
+            object.__setattr__(self, "prior_std", float(self.prior_std))
+        if self.plausible is not None:
+            a, b = (float(v) for v in self.plausible)
+            if not (np.isfinite(a) and np.isfinite(b) and a < b):
+                raise ValueError(f"FitParameter {self.name!r}: plausible range needs finite low < high, got {self}")
+            object.__setattr__(self, "plausible", (a, b))
+
+    @property
+    def plausible_range(self) -> tuple[float, float]:
+        """The plausible range (the bounds when none is stated)."""
+        return self.plausible if self.plausible is not None else self.bounds
 
 
 @dataclass(frozen=True)
@@ -196,6 +223,25 @@ class ReplayModel(Protocol):
 # feeds an input's noise through to a channel, e.g. a damper on the measured
 # road rate). The engine fits with the fixed ``Channel.noise_std`` and uses
 # this only in the noise tests ("no significant gap", "explained").
+#
+# Optional attributes of a replay model, used when present (issue 22):
+#
+#     unidentifiable: Mapping[str, str]
+#
+# effect → the measurement that would make it identifiable, for effects this replay cannot tell
+# apart from its inputs whatever the bag (the rover's path undulation: a terrain measurement);
+# reported as "not identifiable from this bag".
+#
+#     physics: Mapping[str, str]
+#
+# effect → its kind of physics ("sensor", "vehicle", ...; default from the name,
+# attribution.SENSOR_WORDS): two effects of different kinds that explain a bag equally, neither
+# to the noise, are a structure gap.
+#
+# Optional fields of FitParameter (defaults keep older replay models unchanged): ``prior_std``
+# (a nominal tolerance, fitted as a Gaussian prior) and ``plausible`` (the physically plausible
+# range; a best fit outside it is a structure gap). candidates_from_catalogue() takes the latter
+# from the catalogue's EffectParameter when it states one (``physical_range``).
 
 
 def usable_mask(model: Any, name: str, t0: float) -> NDArray[np.bool_]:
@@ -209,6 +255,24 @@ def usable_mask(model: Any, name: str, t0: float) -> NDArray[np.bool_]:
     return use
 
 
+def _plausible(p: Any) -> tuple[float, float] | None:
+    """The catalogue parameter's physically plausible range, clipped to its fit range (None: not stated)."""
+    for name in ("physical_range", "plausible", "plausible_range"):
+        value = getattr(p, name, None)
+        if value is None:
+            continue
+        try:
+            lo, hi = (float(v) for v in value)
+        except (TypeError, ValueError):
+            continue
+        lo, hi = max(lo, float(p.fit_range[0])), min(hi, float(p.fit_range[1]))
+        if (lo, hi) == tuple(float(v) for v in p.fit_range):
+            return None  # the fit range itself: nothing beyond the bounds
+        if np.isfinite(lo) and np.isfinite(hi) and lo < hi:
+            return (lo, hi)
+    return None
+
+
 def candidates_from_catalogue(
     vehicle: str,
     only: Sequence[str] | None = None,
@@ -217,7 +281,8 @@ def candidates_from_catalogue(
     """Candidates for ``vehicle`` from :data:`vehicle_sim.effects.CATALOGUE`.
 
     Fit bounds are the catalogue's fit ranges, the scale its typical deviation
-    from the off value; switch parameters give a zero-parameter candidate.
+    from the off value, the plausible range the catalogue's when it states one;
+    switch parameters give a zero-parameter candidate.
     """
     from vehicle_sim.effects import CATALOGUE
 
@@ -230,6 +295,8 @@ def candidates_from_catalogue(
             if p.switch:
                 continue
             scale = abs(p.typical - p.off) or 0.1 * (p.fit_range[1] - p.fit_range[0])
-            params.append(FitParameter(p.name, p.unit, float(p.off), p.fit_range, float(scale)))
+            params.append(
+                FitParameter(p.name, p.unit, float(p.off), p.fit_range, float(scale), plausible=_plausible(p))
+            )
         out[name] = Candidate(name, tuple(params), effect.description)
     return out

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from terrain_estimation.sim2real.attribution import FittedModel
+from terrain_estimation.sim2real.attribution import AttributionReport, FittedModel
 from terrain_estimation.sim2real.diagnose import Diagnosis
 from terrain_estimation.sim2real.inputs import InputReport
 from terrain_estimation.sim2real.where import WhereReport
@@ -167,10 +167,48 @@ def _fmt_params(m: FittedModel) -> str:
     for effect, params in m.parameters.items():
         for name, value in params.items():
             sd = m.std.get(effect, {}).get(name, float("nan"))
-            parts.append(f"{name} = {value:.4g} ± {sd:.2g}")
+            lo, hi = m.interval.get(effect, {}).get(name, (float("nan"), float("nan")))
+            parts.append(f"{name} = {value:.4g} ± {sd:.2g} [{lo:.4g}, {hi:.4g}]")
         if not params:
             parts.append(f"{effect} on")
     return "; ".join(parts)
+
+
+def _honesty_markdown(a: AttributionReport) -> list[str]:
+    """Structure gap, nominal tolerances and what the bag cannot show (issue 22, items 2–4), under the verdict."""
+    lines: list[str] = []
+    if a.kind == "structure_differs" and a.structure is not None:
+        st = a.structure
+        lines += [
+            "### The model's structure differs here",
+            "",
+            "- **where**: " + ", ".join(f"{k} (held-out gap {st['channel_gaps'][k]:.3g})" for k in st["where"]),
+            f"- **how big**: held-out gap {st['gap']:.3g} (mean r² − 1 over all channels)"
+            + (f"; the noise tests flag {'; '.join(st['residual_gaps'][:3])}" if st["residual_gaps"] else ""),
+            f"- **nearest catalogue description**: {st['nearest']} — {st['description']} "
+            f"(would shrink the gap by {100 * st['shrinkage']:.0f} %)",
+            "- **why it is not that effect**: " + "; ".join(st["reasons"]),
+            "",
+        ]
+    if a.tolerances:
+        lines += [
+            "Nominal parameters fitted within their stated tolerances (config section `/**/sim2real`; a mismatch "
+            "inside the tolerance is a nuisance, not a gap):",
+            "",
+            "| parameter | nominal | tolerance (1σ) | fitted | within |",
+            "|---|---|---|---|---|",
+        ]
+        lines += [
+            f"| {r['parameter']} | {r['nominal']:.4g} | ± {r['tolerance']:.3g} | {r['fitted']:.4g} ± {r['std']:.2g} | "
+            f"{'yes' if r['within'] else '**no**'} |"
+            for r in a.tolerances
+        ]
+        lines.append("")
+    if a.not_identifiable:
+        lines += ["Not identifiable from this bag:", "", "| effect | why | what would identify it |", "|---|---|---|"]
+        lines += [f"| {x['effect']} | {x['why']} | {x['needs']} |" for x in a.not_identifiable]
+        lines.append("")
+    return lines
 
 
 def _inputs_markdown(r: InputReport | None) -> list[str]:
@@ -203,6 +241,7 @@ def diagnosis_markdown(d: Diagnosis) -> str:
         "",
         f"**Verdict: {a.verdict}**",
         "",
+        *_honesty_markdown(a),
         f"Vehicle `{d.vehicle}`, {d.duration:.1f} s of data; diagnosed in {d.seconds:.1f} s. "
         f"Fitted on {a.train_samples} samples, scored on {a.test_samples} held-out samples "
         f"(every {a.settings.test_every}rd block of {a.settings.block:g} s after a warm-up, never fitted to).",
@@ -214,16 +253,21 @@ def diagnosis_markdown(d: Diagnosis) -> str:
         "Shrinkage = 1 − gap(with effect)/gap(nominal); interval: "
         f"{100 * a.settings.confidence:.0f} % block bootstrap. Score = held-out χ² + p·ln n (p: parameters added).",
         "",
-        "| rank | model | p | held-out score | shrinkage | interval | significant | fitted parameters (± 1σ) |",
-        "|---|---|---|---|---|---|---|---|",
+        f"Fitted parameters: value ± 1σ [{100 * a.settings.confidence:.0f} % interval]; σ from a sandwich covariance "
+        "over time batches longer than the residual's correlation time (autocorrelation widens it). "
+        "LR: held-out likelihood ratio against the nominal (units of the residual's own level, autocorrelation "
+        "accounted for).",
+        "",
+        "| rank | model | p | held-out score | shrinkage | interval | LR | significant | fitted parameters |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     rows = [a.nominal] + a.ranking
     for i, m in enumerate(rows):
         rank = "–" if i == 0 else str(i)
         lines.append(
             f"| {rank} | {m.name} | {m.added} | {m.score:.1f} | {100 * m.shrinkage.get('overall', 0.0):.1f} % | "
-            f"[{100 * m.shrinkage_ci[0]:.0f}, {100 * m.shrinkage_ci[1]:.0f}] % | {'yes' if m.significant else ''} | "
-            f"{_fmt_params(m)} |"
+            f"[{100 * m.shrinkage_ci[0]:.0f}, {100 * m.shrinkage_ci[1]:.0f}] % | {m.lr:.1f} | "
+            f"{'yes' if m.significant else ''} | {_fmt_params(m)} |"
         )
     if a.pairs:
         lines += ["", "Pairs (the best single effect with each significant runner-up):", ""]

@@ -6,7 +6,9 @@ parameter the nodes declare is in the file with its description, unit and
 range, and the file never names a parameter the nodes do not know.
 
 Sections: ``/**`` holds the vehicle's physical parameters, read by the
-estimator and the simulator alike; then one section per node. Each node
+estimator and the simulator alike; then one section per node, and
+``/**/sim2real``: the tolerances of the uncertain nominal parameters that the
+sim-to-real diagnosis fits as nuisance (:mod:`terrain_estimation.sim2real.tolerance`). Each node
 refuses a ``/**`` name it does not declare (:mod:`terrain_estimation.params`),
 so a parameter of one node only belongs in that node's section.
 """
@@ -19,6 +21,8 @@ from typing import Any
 
 from terrain_estimation.params import ParamSpec
 from terrain_estimation.ros.framework import EstimatorNode, SimulatorNode
+from terrain_estimation.sim2real.tolerance import SECTION as SIM2REAL_SECTION
+from terrain_estimation.sim2real.tolerance import SPECS as SIM2REAL_SPECS
 from terrain_estimation.vehicles import VEHICLES, get_vehicle
 
 __all__ = ["render_config", "main"]
@@ -99,6 +103,14 @@ def render_config(vehicle: str) -> str:
     lines.append("")
     lines.append(f"# the simulator node ({sim.node_name}); also read by terrain-simulate")
     lines += _section(f'"/**/{sim.node_name}"', [s for s in sim_specs if s.name not in shared_names])
+    tolerance_specs = SIM2REAL_SPECS.get(vehicle, ())
+    if tolerance_specs:
+        lines.append("")
+        lines.append(
+            "# the sim-to-real diagnosis (terrain-sim2real): tolerances of the uncertain nominal parameters "
+            "(terrain_estimation.sim2real.tolerance)"
+        )
+        lines += _section(f'"/**/{SIM2REAL_SECTION}"', tolerance_specs)
     return "\n".join(lines) + "\n"
 
 

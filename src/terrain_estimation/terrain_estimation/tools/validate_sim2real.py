@@ -107,6 +107,8 @@ def _diagnose_one(args: tuple[str, str, str, str]) -> dict[str, Any]:
             "best": a.best.to_dict() if a.best is not None else None,
             "nominal_gap": a.nominal.gap.get("overall", 0.0),
             "nominal_gaps": a.nominal_gaps,
+            "structure": a.structure,
+            "not_identifiable": [x["effect"] for x in a.not_identifiable],
             "seconds": time.perf_counter() - started,
         }
     except Exception as exc:  # a failure is a result to score, not a crash of the run
@@ -182,6 +184,8 @@ def _predicted(r: dict[str, Any]) -> str:
         return " + ".join(r["explained_by"])
     if r["kind"] == "not_explained":
         return "not explained"
+    if r["kind"] == "structure_differs":
+        return "structure differs"
     return "error"
 
 
@@ -253,6 +257,34 @@ def _control_name(label: Mapping[str, Any]) -> str:
     return f"control ({road} road)" if road in ROUGH_ROADS else "control"
 
 
+def _flat(values: Any, prefix: str = "") -> dict[str, float]:
+    """{parameter: value} of a label's or a fit's (possibly per-effect nested) parameters."""
+    out: dict[str, float] = {}
+    if isinstance(values, Mapping):
+        for k, v in values.items():
+            if isinstance(v, Mapping):
+                out.update(_flat(v))
+            elif isinstance(v, int | float) and not isinstance(v, bool):
+                out[str(k)] = float(v)
+    return out
+
+
+def interval_coverage(rows: Sequence[tuple[dict[str, Any], dict[str, Any]]]) -> tuple[int, int]:
+    """(covered, total): true parameter values of right attributions inside the fit's interval (issue 22, item 5)."""
+    covered = total = 0
+    for lab, r in rows:
+        best = r.get("best") or {}
+        intervals: dict[str, Any] = {}
+        for params in (best.get("interval") or {}).values():
+            intervals.update(params)
+        for name, truth in _flat(lab.get("parameters")).items():
+            if name in intervals:
+                lo, hi = intervals[name]
+                total += 1
+                covered += int(lo <= truth <= hi)
+    return covered, total
+
+
 def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Join the blind results with ``labels.json`` and compute the must-show figures per vehicle."""
     labels = json.loads((suite / "labels.json").read_text(encoding="utf-8"))["labels"]
@@ -294,6 +326,8 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
         def frac(a: int, b: int) -> float:
             return a / b if b else math.nan
 
+        covered, intervals = interval_coverage(right)
+
         out[vehicle] = {
             "bags": len(rows),
             "effect_bags": len(effect_rows),
@@ -304,6 +338,9 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "controls_no_gap": frac(sum(r["kind"] == "no_gap" for _, r in controls), len(controls)),
             "ooc": len(ooc),
             "ooc_not_confident": frac(sum(r["kind"] != "explained" for _, r in ooc), len(ooc)),
+            "ooc_structural": frac(sum(r["kind"] == "structure_differs" for _, r in ooc), len(ooc)),
+            "interval_coverage": frac(covered, intervals),
+            "intervals": intervals,
             "median_shrinkage": statistics.median(shrink) if shrink else math.nan,
             "errors": sum(r["kind"] == "error" for _, r in rows),
             "median_seconds": statistics.median([r["seconds"] for _, r in rows]) if rows else math.nan,
@@ -473,6 +510,21 @@ def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
             f"| **all** | {s['bags']} | {_pct(s['top1'])} of {s['effect_bags']} |  | "
             f"{_pct(s['controls_no_gap'])} of {s['controls']} | {_pct(s['ooc_not_confident'])} of {s['ooc']} | "
             f"{_pct(s['median_shrinkage'])} |  |  |"
+        )
+    lines += [
+        "",
+        "Issue 22 (honest engine): parameter intervals of the right attributions that cover the true value "
+        "(target 85–95 % for 90 % intervals), and out-of-catalogue bags reported as a structure gap:",
+        "",
+        "| vehicle | interval coverage | out-of-catalogue: structure differs |",
+        "|---|---|---|",
+    ]
+    for vehicle, s in scores.items():
+        if vehicle == "all" or "interval_coverage" not in s:
+            continue
+        lines.append(
+            f"| {vehicle} | {_pct(s['interval_coverage'])} of {s['intervals']} | "
+            f"{_pct(s['ooc_structural'])} of {s['ooc']} |"
         )
     overall: dict[str, Any] = scores.get("all") or next(iter(scores.values()), {})
     lines += ["", "Must-show (issue 6), over the vehicles above:", ""]
