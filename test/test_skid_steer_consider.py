@@ -111,28 +111,3 @@ def test_motion_resistance_opposes_travel_and_turning():
     fx0, _, mz0 = model.forces(np.array([0.0, 0.0, 0.5, 0.0]), pivot)
     assert abs(fx - fx0) < 1e-6 * p.mass * p.gravity
     assert mz - mz0 < -0.01 * p.mass * p.gravity * p.track / 2
-
-
-def test_the_process_sensitivity_to_the_resistance_is_not_lost_at_its_bound():
-    """The resistance is nominally 0 and clipped at 0 in the model: a derivative that steps it down
-    sees no change, and the process part of the sensitivity vanished (only the measurement's was left).
-    Stepping up, a resistance c decelerates the body by about c*g: one predict-only step of dt from
-    Psi = 0 gives a v_x sensitivity of about g*dt (the sign convention of Psi = F_s Psi - F_c)."""
-    from types import SimpleNamespace
-
-    from terrain_estimation.estimators.skid_steer_consider import RESISTANCE_NAME, ConsiderCovariance
-
-    cfg = SkidSteerEstimatorConfig()
-    estimator = SkidSteerEstimator(cfg)
-    consider = ConsiderCovariance.for_estimator(cfg.consider, cfg, estimator.model)
-    assert consider is not None and RESISTANCE_NAME in consider.considered
-    column = consider.considered.index(RESISTANCE_NAME)
-    n_s = consider.psi.shape[0]
-    x = np.zeros(n_s)
-    x[0] = 2.0  # 2 m/s straight ahead, scales at 1 (log 0)
-    wheel = 2.0 / SkidSteerParams().wheel_radius
-    u = SkidSteerInput(omega_left=wheel, omega_right=wheel)
-    dt = 0.01
-    consider.step(x, x, SimpleNamespace(accepted=False), np.eye(n_s), u, dt)
-    sensitivity = consider.psi[0, column]
-    assert 0.5 * 9.81 * dt < abs(sensitivity) < 2.0 * 9.81 * dt

@@ -985,12 +985,11 @@ def _consider(
     n_aug = 3 + ami[_K] + ami[_RES]
     fail = (STATUS_FALLBACK, psi.copy(), np.zeros((0, 0)))
     directions = np.zeros((n_aug, k))
-    # [-Ψ; +I]: the parameter steps up (a resistance at its lower bound 0 moves), the result negated
     for i in range(n_s):
         for j in range(k):
-            directions[s_idx[i], j] = -psi[i, j]
+            directions[s_idx[i], j] = psi[i, j]
     for j in range(k):
-        directions[c_idx[j], j] = 1.0
+        directions[c_idx[j], j] = -1.0
     # _directional(f, x_prev, directions)
     xa = np.zeros(n_aug)
     for i in range(n_s):
@@ -1016,7 +1015,7 @@ def _consider(
     new = np.empty((n_s, k))
     for j in range(k):
         for i in range(n_s):
-            new[i, j] = -(out[j + 1, s_idx[i]] - out[0, s_idx[i]]) / eps[j]
+            new[i, j] = (out[j + 1, s_idx[i]] - out[0, s_idx[i]]) / eps[j]
     if accepted:
         xb = np.zeros(n_aug)
         for i in range(n_s):

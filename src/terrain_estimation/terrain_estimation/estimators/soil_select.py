@@ -6,15 +6,15 @@ A module of its own so that neither estimator imports the other's module back
 
 from __future__ import annotations
 
+from typing import Any
+
 from terrain_estimation.estimators.soil_profile_free import ProfileFreeSoilStiffnessEstimator
 from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimator, SoilStiffnessEstimatorConfig
 
 __all__ = ["make_estimator"]
 
 
-def make_estimator(
-    config: SoilStiffnessEstimatorConfig | None = None,
-) -> SoilStiffnessEstimator | ProfileFreeSoilStiffnessEstimator:
+def make_estimator(config: SoilStiffnessEstimatorConfig | None = None) -> Any:
     """The estimator ``config.road_input`` selects: :class:`SoilStiffnessEstimator` (profile) or the profile-free one.
 
     Raises:
