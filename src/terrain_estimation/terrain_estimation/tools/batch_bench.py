@@ -339,13 +339,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     print()
     print(text)
     if not args.no_page:
+        from terrain_estimation.tools.batch_engine_choice import PAGE_TITLE
         from terrain_estimation.tools.reporting import write_section
 
         page = Path(args.page)
-        if not page.exists():
-            page.parent.mkdir(parents=True, exist_ok=True)
-            page.write_text("# Performance\n\nFigures written by the commands named in each section.\n")
-        write_section(page, SECTION, text)
+        write_section(page, SECTION, text, title=PAGE_TITLE)
         print(f"wrote section {SECTION!r} of {page}", file=sys.stderr)
     return 0
 

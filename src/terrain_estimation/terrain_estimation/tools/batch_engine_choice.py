@@ -42,6 +42,8 @@ from typing import Any
 __all__ = ["main"]
 
 SECTION = "batch_engine"
+#: Heading of docs/results/performance.md when a command creates it.
+PAGE_TITLE = "# Performance\n\nFigures written by the commands named in each section."
 ENGINES = ("dask", "ray")
 
 
@@ -343,10 +345,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     text = _page_text(rows, sizes, imports, meta)
     print(text)
     page = Path(args.out)
-    if not page.exists():
-        page.parent.mkdir(parents=True, exist_ok=True)
-        page.write_text("# Performance\n\nFigures written by the commands named in each section.\n")
-    write_section(page, SECTION, text)
+    write_section(page, SECTION, text, title=PAGE_TITLE)
     print(f"wrote section {SECTION!r} of {page}", file=sys.stderr)
     return 0
 

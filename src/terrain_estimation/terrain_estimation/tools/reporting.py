@@ -241,8 +241,10 @@ def _section_re(name: str) -> Any:
     return re.compile(rf"\n*{begin}\n.*?\n{end}\n", re.DOTALL)
 
 
-def write_section(path: str | os.PathLike[str], name: str, text: str) -> Path:
+def write_section(path: str | os.PathLike[str], name: str, text: str, *, title: str | None = None) -> Path:
     """Put ``text`` in the page ``path`` as the section ``name``: replaced in place if there, else appended.
+
+    ``title`` heads a page that does not exist yet (a new page otherwise starts with the section).
 
     Two commands can then share one results page (``make bench-load`` writes
     ``robustness.md`` whole and keeps the sections of others: :func:`keep_sections`).
@@ -260,7 +262,7 @@ def write_section(path: str | os.PathLike[str], name: str, text: str) -> Path:
     if page.suffix.lower() not in (".md", ".markdown") or page.is_dir():
         raise InputError(f"{page}: a results page must be a Markdown file (.md); nothing written")
     block = f"{_SECTION.format(edge='begin', name=name)}\n{text.rstrip()}\n{_SECTION.format(edge='end', name=name)}\n"
-    old = page.read_text() if page.exists() else ""
+    old = page.read_text() if page.exists() else (title.rstrip() + "\n" if title else "")
     pattern = _section_re(name)
     new = pattern.sub(lambda _m: "\n\n" + block, old, count=1) if pattern.search(old) else old.rstrip() + "\n\n" + block
     page.parent.mkdir(parents=True, exist_ok=True)
