@@ -465,6 +465,26 @@ class _Problem:
         return chi, n
 
 
+def _problem(
+    model: ReplayModel,
+    settings: AttributionSettings,
+    train: dict[str, BoolArray],
+    test: dict[str, BoolArray],
+    test_blocks: dict[str, Any],
+) -> _Problem:
+    """The fitting problem of one train/test split (every held-out block of every channel)."""
+    all_blocks = np.unique(np.concatenate([np.asarray(v, dtype=int) for v in test_blocks.values()]))
+    return _Problem(
+        model=model,
+        sigma={c.name: float(c.noise_std) for c in model.channels},
+        train=train,
+        test=test,
+        test_blocks=test_blocks,
+        blocks=all_blocks.astype(float),
+        shortest_batch=settings.block,
+    )
+
+
 def _layout(nuisance: Sequence[FitParameter], candidates: Sequence[Candidate]) -> list[tuple[str | None, FitParameter]]:
     out: list[tuple[str | None, FitParameter]] = [(None, p) for p in nuisance]
     for c in candidates:
@@ -922,17 +942,7 @@ def _cross_fitted(
         train, test = held_out_mask(model, settings, fold)
         if sum(int(np.sum(v)) for v in test.values()) < 10:
             continue
-        blocks = _block_ids(model, settings, test)
-        all_blocks = np.unique(np.concatenate([np.asarray(v, dtype=int) for v in blocks.values()]))
-        sub = _Problem(
-            model=model,
-            sigma={c.name: float(c.noise_std) for c in model.channels},
-            train=train,
-            test=test,
-            test_blocks=blocks,
-            blocks=all_blocks.astype(float),
-            shortest_batch=settings.block,
-        )
+        sub = _problem(model, settings, train, test, _block_ids(model, settings, test))
         nom = fit(sub, [], nominal.nuisance, light)
         alt = fit(sub, [cand], nominal.nuisance, light, start_effects=start)
         r_fit.append(alt.test_residual)
@@ -1365,16 +1375,7 @@ def attribute(
     n_test = int(sum(int(np.sum(v)) for v in test.values()))
     if n_train < 10 or n_test < 10:
         raise ValueError(f"too little data to fit and score: {n_train} training and {n_test} held-out samples")
-    all_blocks = np.unique(np.concatenate([np.asarray(v, dtype=int) for v in test_blocks.values()]))
-    problem = _Problem(
-        model=model,
-        sigma={c.name: float(c.noise_std) for c in model.channels},
-        train=train,
-        test=test,
-        test_blocks=test_blocks,
-        blocks=all_blocks.astype(float),
-        shortest_batch=settings.block,
-    )
+    problem = _problem(model, settings, train, test, test_blocks)
     rng = np.random.default_rng(settings.seed)
     start = dict(start_nuisance or {})
 
