@@ -51,7 +51,7 @@ $(PKGS_STAMP): $(MSGS_STAMP) src/terrain_estimation/pyproject.toml src/vehicle_s
 	@echo "setup complete: $(VENV)"
 
 demo: setup
-	$(PY) -m terrain_estimation.tools.demo --out out/demo
+	$(PY) -m terrain_analysis.tools.demo --out out/demo
 
 lint: setup
 	$(PY) -m ruff check src test
@@ -66,33 +66,33 @@ unit: setup
 test: setup lint typecheck unit
 
 bench: setup  ## per-step filter cost (ours vs filterpy), bag throughput, simulator speed
-	$(PY) -m terrain_estimation.tools.bench
+	$(PY) -m terrain_analysis.tools.bench
 
 property-long: setup  ## the square-root filters' property tests over 10^6 random steps (issue 7; ~4 min)
 	TERRAIN_PROPERTY_STEPS=1000000 $(PY) -m pytest -s -q --timeout=1800 -p no:xdist test/filters/test_filters_faults_properties.py
 
 mutate: setup  ## every kind of damage to the shipped bags through both offline tools (issue 19; ~10 min) -> docs/results/robustness.md
-	$(PY) -m terrain_estimation.tools.mutate --report docs/results/robustness.md
+	$(PY) -m terrain_analysis.tools.mutate --report docs/results/robustness.md
 
 bench-load: setup  ## many vehicles and load: latency, dropped input, CPU per vehicle (issue 7) -> docs/results/robustness.md
-	$(PY) -m terrain_estimation.tools.bench_load --out docs/results/robustness.md
+	$(PY) -m terrain_analysis.tools.bench_load --out docs/results/robustness.md
 
 # Long reproductions of the papers' results (not part of make test).
 reproduce: reproduce-qc reproduce-skid reproduce-rover
 
 reproduce-qc: setup
-	$(PY) -m terrain_estimation.tools.reproduce_qc --out docs/results --jobs 2
-	$(PY) -m terrain_estimation.tools.qc_consistency --out docs/results/quarter_car.md --jobs 2
-	$(PY) -m terrain_estimation.tools.reproduce_qc_profile_free --seeds 10 --jobs 2 --out docs/results/quarter_car.md
+	$(PY) -m terrain_analysis.tools.reproduce_qc --out docs/results --jobs 2
+	$(PY) -m terrain_analysis.tools.qc_consistency --out docs/results/quarter_car.md --jobs 2
+	$(PY) -m terrain_analysis.tools.reproduce_qc_profile_free --seeds 10 --jobs 2 --out docs/results/quarter_car.md
 
 reproduce-skid: setup
-	$(PY) -m terrain_estimation.tools.reproduce_skid --out docs/results --jobs 2
-	$(PY) -m terrain_estimation.tools.skid_compare --tune --seeds 2 --jobs 2 --out docs/results/skid_steer_fair.md
-	$(PY) -m terrain_estimation.tools.skid_compare --seeds 20 --jobs 2 --out docs/results/skid_steer_fair.md
-	$(PY) -m terrain_estimation.tools.skid_compare --consider --seeds 2 --scenarios nominal --jobs 2 --out docs/results/skid_steer_fair.md
+	$(PY) -m terrain_analysis.tools.reproduce_skid --out docs/results --jobs 2
+	$(PY) -m terrain_analysis.tools.skid_compare --tune --seeds 2 --jobs 2 --out docs/results/skid_steer_fair.md
+	$(PY) -m terrain_analysis.tools.skid_compare --seeds 20 --jobs 2 --out docs/results/skid_steer_fair.md
+	$(PY) -m terrain_analysis.tools.skid_compare --consider --seeds 2 --scenarios nominal --jobs 2 --out docs/results/skid_steer_fair.md
 
 reproduce-rover: setup
-	$(PY) -m terrain_estimation.tools.reproduce_rover --out docs/results --jobs 2
+	$(PY) -m terrain_analysis.tools.reproduce_rover --out docs/results --jobs 2
 
 # Sim-to-real diagnosis (issue 6). validate-sim2real: withheld-effect suite, diagnosed blind, scored
 # (PER_EFFECT bags per catalogue effect; about 1 h on 2 cores at the default 6). sim2real-real-data:
@@ -102,28 +102,28 @@ CONTROLS   ?= 10
 REAL_DATA  ?= ../shared/real_data
 
 validate-sim2real: setup
-	$(PY) -m terrain_estimation.tools.validate_sim2real --out out/sim2real_validation --per-effect $(PER_EFFECT) --controls $(CONTROLS) \
+	$(PY) -m terrain_analysis.tools.validate_sim2real --out out/sim2real_validation --per-effect $(PER_EFFECT) --controls $(CONTROLS) \
 		--jobs 2 --report docs/results/sim2real/validation.md
-	$(PY) -m terrain_estimation.tools.sim2real_results
+	$(PY) -m terrain_analysis.tools.sim2real_results
 
 # The same with another seed: a second suite, drawn after the diagnosis was developed on the first.
 validate-sim2real-seed2027: setup
-	$(PY) -m terrain_estimation.tools.validate_sim2real --out out/sim2real_validation_seed2027 --per-effect $(PER_EFFECT) \
+	$(PY) -m terrain_analysis.tools.validate_sim2real --out out/sim2real_validation_seed2027 --per-effect $(PER_EFFECT) \
 		--controls $(CONTROLS) --seed 2027 --jobs 2 --report docs/results/sim2real/validation_seed2027.md
-	$(PY) -m terrain_estimation.tools.sim2real_results
+	$(PY) -m terrain_analysis.tools.sim2real_results
 
 sim2real-real-data: setup
 	@if [ -d "$(REAL_DATA)/cmu_single_wheel" ]; then \
-		$(PY) -m terrain_estimation.sim2real.single_wheel --data $(REAL_DATA)/cmu_single_wheel \
+		$(PY) -m terrain_analysis.sim2real.single_wheel --data $(REAL_DATA)/cmu_single_wheel \
 			--out docs/results/sim2real/cmu; \
 	else echo "sim2real-real-data: $(REAL_DATA)/cmu_single_wheel not found, CMU rig skipped"; fi
 	@if [ -d "$(REAL_DATA)/borealtc" ]; then \
-		$(PY) -m terrain_estimation.sim2real.husky --data $(REAL_DATA)/borealtc --out docs/results/sim2real/husky \
+		$(PY) -m terrain_analysis.sim2real.husky --data $(REAL_DATA)/borealtc --out docs/results/sim2real/husky \
 			--bags out/husky_bags --overwrite; \
-		$(PY) -m terrain_estimation.tools.skid_real_check out/husky_bags --config config/husky.yaml \
+		$(PY) -m terrain_analysis.tools.skid_real_check out/husky_bags --config config/husky.yaml \
 			--out docs/results/skid_steer_fair.md || true; \
 	else echo "sim2real-real-data: $(REAL_DATA)/borealtc not found, Husky runs skipped"; fi
-	$(PY) -m terrain_estimation.tools.sim2real_results
+	$(PY) -m terrain_analysis.tools.sim2real_results
 
 constraints: setup
 	{ head -n 3 constraints.txt; $(PIP) freeze | grep -v -E '^(-e |terrain|vehicle)'; } > constraints.txt.new

@@ -23,8 +23,8 @@ from integration.replay import LockstepReplay
 from rosgraph_msgs.msg import Clock
 
 from terrain_estimation.bag import read_bag
+from terrain_estimation.nodes import make_estimator_node
 from terrain_estimation.ros.framework import EstimatorNode
-from terrain_estimation.ros.nodes import make_estimator_node
 from terrain_estimation.ros.qos import CLOCK_QOS
 from terrain_estimation.ros.time import sec_to_stamp, stamp_to_sec
 from terrain_estimation.tools.estimate import numeric_fields

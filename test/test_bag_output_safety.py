@@ -200,7 +200,7 @@ def test_report_directory_is_made_marked_and_never_emptied(tmp_path: Path) -> No
 
 
 def test_demo_refuses_a_foreign_out_directory(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from terrain_estimation.tools import demo
+    from terrain_analysis.tools import demo
 
     foreign = _foreign_dir(tmp_path / "mine")
     before = _tree(foreign)

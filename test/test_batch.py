@@ -20,8 +20,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from terrain_analysis.batch.bags import UnknownVehicleError, detect_vehicle, find_bags
 from terrain_estimation.bag import bag_contents, read_bag
-from terrain_estimation.batch.bags import UnknownVehicleError, detect_vehicle, find_bags
 from terrain_estimation.cli import EXIT_FINDING, EXIT_INPUT
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
@@ -93,7 +93,7 @@ def _rows(out: Path) -> dict[str, dict[str, str]]:
 def test_batch_on_a_real_local_cluster_isolates_a_corrupt_bag_and_resumes(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from terrain_estimation.tools import batch
+    from terrain_analysis.tools import batch
     from terrain_estimation.tools.estimate import estimate_bag
 
     inputs = tmp_path / "fleet"
@@ -131,7 +131,7 @@ def test_batch_on_a_real_local_cluster_isolates_a_corrupt_bag_and_resumes(
     assert _digest(inputs) == before, "the input bags were modified"
 
     # second run: everything up to date or unchanged since it failed; no cluster is even started
-    import terrain_estimation.batch.engine as engine
+    import terrain_analysis.batch.engine as engine
 
     def no_cluster(*_a: object, **_k: object) -> None:
         raise AssertionError("the second run started a cluster: something was not skipped")
@@ -150,7 +150,7 @@ def test_batch_on_a_real_local_cluster_isolates_a_corrupt_bag_and_resumes(
 
 def test_batch_refuses_an_output_directory_it_did_not_make_and_an_empty_input(tmp_path: Path) -> None:
     """Nothing is written into a foreign non-empty directory; no bag found is exit 2 (no cluster needed)."""
-    from terrain_estimation.tools import batch
+    from terrain_analysis.tools import batch
 
     foreign = tmp_path / "results"
     foreign.mkdir()

@@ -1,4 +1,4 @@
-"""Smoke test of ``python -m terrain_estimation.tools.bench_load --quick``: every row is printed.
+"""Smoke test of ``python -m terrain_analysis.tools.bench_load --quick``: every row is printed.
 
 No timing, latency, CPU or loss figure is asserted: they depend on the machine
 and its load (the benchmark prints them; ``make bench-load`` writes
@@ -15,7 +15,7 @@ import pytest
 
 pytest.importorskip("vehicle_sim")
 
-from terrain_estimation.tools import bench_load  # noqa: E402
+from terrain_analysis.tools import bench_load  # noqa: E402
 
 
 def test_bench_load_quick_prints_every_row(capsys, tmp_path):
@@ -41,7 +41,7 @@ def test_bench_load_quick_prints_every_row(capsys, tmp_path):
     for r in figures["rows"]:
         assert r["published"] > 0, r
     text = out_md.read_text()
-    assert "python -m terrain_estimation.tools.bench_load --quick" in text
+    assert "python -m terrain_analysis.tools.bench_load --quick" in text
     assert all(label in text for label in bench_load.row_labels(quick=True))
 
 

@@ -1,4 +1,4 @@
-"""Smoke test of ``python -m terrain_estimation.tools.bench --quick``: every row is printed.
+"""Smoke test of ``python -m terrain_analysis.tools.bench --quick``: every row is printed.
 
 No timing is asserted anywhere: the figures depend on the machine. Only that
 the run completes, prints each row with finite numbers, and writes the same
@@ -15,7 +15,7 @@ import pytest
 pytest.importorskip("filterpy")
 pytest.importorskip("vehicle_sim")
 
-from terrain_estimation.tools import bench  # noqa: E402
+from terrain_analysis.tools import bench  # noqa: E402
 
 EXPECTED_ROWS = (
     "machine:",

@@ -80,7 +80,7 @@ def test_missing_partner_file_is_refused(tmp_path):
 def test_real_borealtc_runs_import_and_replay(tmp_path):
     if not REAL.is_dir():
         pytest.skip(f"real data not present at {REAL} (../shared/real_data/borealtc)")
-    from terrain_estimation.sim2real.husky import build_husky_model
+    from terrain_analysis.sim2real.husky import build_husky_model
 
     runs = find_runs(REAL)
     assert {r.terrain for r in runs} >= {"ASPHALT", "SANDY_LOAM"}

@@ -74,15 +74,15 @@ def test_a_closed_pipe_is_quiet(capsys: pytest.CaptureFixture[str]) -> None:
 
 # Tools whose whole main goes through cli_main: an error anywhere, even in argument parsing, is status 3.
 DECORATED = [
-    "terrain_estimation.tools.bench",
-    "terrain_estimation.tools.bench_load",
-    "terrain_estimation.tools.reproduce_qc",
-    "terrain_estimation.tools.reproduce_rover",
-    "terrain_estimation.tools.reproduce_skid",
-    "terrain_estimation.tools.sim2real_results",
-    "terrain_estimation.tools.validate_sim2real",
-    "terrain_estimation.sim2real.husky",
-    "terrain_estimation.sim2real.single_wheel",
+    "terrain_analysis.tools.bench",
+    "terrain_analysis.tools.bench_load",
+    "terrain_analysis.tools.reproduce_qc",
+    "terrain_analysis.tools.reproduce_rover",
+    "terrain_analysis.tools.reproduce_skid",
+    "terrain_analysis.tools.sim2real_results",
+    "terrain_analysis.tools.validate_sim2real",
+    "terrain_analysis.sim2real.husky",
+    "terrain_analysis.sim2real.single_wheel",
     "vehicle_sim.tools.withheld",
 ]
 
@@ -106,7 +106,7 @@ def test_an_internal_error_is_status_3_in_every_tool(module: str, monkeypatch: p
         ),
         ("vehicle_sim.tools.simulate", "record", ["--vehicle", "quarter_car", "--duration", "1", "-o", "{tmp}/out"]),
         (
-            "terrain_estimation.tools.sim2real",
+            "terrain_analysis.tools.sim2real",
             "diagnose",
             [str(BAGS / "quarter_car_graneville_iso_d_10ms"), "--vehicle", "quarter_car", "-q"],
         ),
@@ -129,7 +129,7 @@ def test_an_internal_error_in_the_work_is_status_3(
     ("module", "argv"),
     [
         ("terrain_estimation.tools.estimate", ["{tmp}/no_such_bag", "--vehicle", "quarter_car", "-o", "{tmp}/out"]),
-        ("terrain_estimation.tools.sim2real", ["{tmp}/no_such_bag", "--vehicle", "quarter_car", "-q"]),
+        ("terrain_analysis.tools.sim2real", ["{tmp}/no_such_bag", "--vehicle", "quarter_car", "-q"]),
         ("vehicle_sim.tools.simulate", ["--vehicle", "quarter_car", "--duration", "-1", "-o", "{tmp}/out"]),
         ("vehicle_sim.tools.borealtc", ["--data", "{tmp}/no_such_data", "--out", "{tmp}/out"]),
     ],

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
+from terrain_analysis.tools.config_template import render_config
 from terrain_estimation.params import load_parameter_file, resolve_parameters
 from terrain_estimation.ros.framework import EstimatorNode, SimulatorNode
-from terrain_estimation.tools.config_template import render_config
 from terrain_estimation.vehicles import VEHICLES
 from vehicle_sim.ros.registry import get_simulator
 
@@ -18,7 +18,7 @@ CONFIG = Path(__file__).resolve().parents[1] / "config"
 @pytest.mark.parametrize("vehicle", sorted(VEHICLES))
 def test_committed_config_is_the_rendered_one(vehicle):
     assert (CONFIG / f"{vehicle}.yaml").read_text() == render_config(vehicle), (
-        f"config/{vehicle}.yaml is stale: python -m terrain_estimation.tools.config_template {vehicle}"
+        f"config/{vehicle}.yaml is stale: python -m terrain_analysis.tools.config_template {vehicle}"
     )
 
 

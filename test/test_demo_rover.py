@@ -1,4 +1,4 @@
-"""The demo's rover summary (``terrain_estimation.tools.demo.ROVER``) on synthetic messages: no ROS graph.
+"""The demo's rover summary (``terrain_analysis.tools.demo.ROVER``) on synthetic messages: no ROS graph.
 
 Ground truth at 50 Hz and estimates at 5 Hz with known errors (large before
 the settle time, constant after), two terrain models whose last one is off
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
 
-from terrain_estimation.tools import demo
+from terrain_analysis.tools import demo
 from terrain_msgs.msg import TerrainResponseModel, WheelTerrain, WheelTerrainArray
 
 DURATION = 10.0

@@ -8,9 +8,11 @@ Layers (a module may import its own layer and those below it, never above):
 1. **simulator**: ``vehicle_sim`` (plants, terrain, effects, simulator nodes
    and tools). It may use the core's shared geometry and kinematics, its
    parameter specs and its node framework.
-2. **offline analysis**: sim-to-real diagnosis, fleet batch runs,
-   reproductions, benchmarks, validation, the demo, the config generator (it writes the simulator's
-   sections too) and the information bounds (they simulate the truth).
+2. **offline analysis**, the package ``terrain_analysis`` (beside the core in
+   ``src/terrain_estimation``): sim-to-real diagnosis, fleet batch runs,
+   reproductions, benchmarks, validation, the demo, the config generator (it
+   writes the simulator's sections too) and the information bounds (they
+   simulate the truth).
 
 Every import counts, at module level or inside a function (a lazy import is
 still a dependency). The graph is read from the source with :mod:`ast`, so
@@ -35,32 +37,19 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCES = (ROOT / "src" / "terrain_estimation", ROOT / "src" / "vehicle_sim")
-TOP_LEVEL = ("terrain_estimation", "vehicle_sim")
-
-#: Analysis modules that sit in core packages by name (layer 2).
-ANALYSIS_MODULES = frozenset({"terrain_estimation.analysis.pcrlb"})
-#: Core modules in ``terrain_estimation.tools`` (layer 0): the offline runner of the nodes.
-CORE_TOOLS = frozenset({"terrain_estimation.tools", "terrain_estimation.tools.estimate"})
+TOP_LEVEL = ("terrain_estimation", "terrain_analysis", "vehicle_sim")
 
 #: Back edges present when the check was written (issue 24 removes them).
 KNOWN_BACK_EDGES: frozenset[tuple[str, str]] = frozenset()
 #: Module cycles present when the check was written (each as a sorted tuple).
 KNOWN_MODULE_CYCLES: frozenset[tuple[str, ...]] = frozenset(
     {
-        ("terrain_estimation.bag", "terrain_estimation.outputs"),
-        ("terrain_estimation.sim2real.husky", "terrain_estimation.sim2real.skid_steer"),
-        ("terrain_estimation.tools.reproduce_qc", "terrain_estimation.tools.reproduce_qc_change"),
+        ("terrain_analysis.sim2real.husky", "terrain_analysis.sim2real.skid_steer"),
+        ("terrain_analysis.tools.reproduce_qc", "terrain_analysis.tools.reproduce_qc_change"),
     }
 )
 #: Package cycles present when the check was written (each as a sorted tuple).
-KNOWN_PACKAGE_CYCLES: frozenset[tuple[str, ...]] = frozenset(
-    {
-        ("terrain_estimation.bag", "terrain_estimation.outputs"),
-        ("terrain_estimation.ros", "terrain_estimation.vehicles"),
-        # tools holds the core's offline runner (estimate) beside the analysis tools that import the rest
-        ("terrain_estimation.batch", "terrain_estimation.sim2real", "terrain_estimation.tools", "vehicle_sim.tools"),
-    }
-)
+KNOWN_PACKAGE_CYCLES: frozenset[tuple[str, ...]] = frozenset()
 
 
 def modules() -> dict[str, Path]:
@@ -111,14 +100,10 @@ def imports(known: Mapping[str, Path]) -> dict[str, set[str]]:
 
 def layer(module: str) -> int:
     """0 core, 1 simulator, 2 offline analysis."""
-    if module in ANALYSIS_MODULES:
+    if module.startswith("terrain_analysis"):
         return 2
     if module.startswith("vehicle_sim"):
         return 1
-    if module.startswith(("terrain_estimation.sim2real", "terrain_estimation.batch")):
-        return 2
-    if module.startswith("terrain_estimation.tools") and module not in CORE_TOOLS:
-        return 2
     return 0
 
 
@@ -252,23 +237,28 @@ def test_the_checker_sees_a_back_edge_and_a_cycle(tmp_path: Path) -> None:
     (pkg / "filters").mkdir(parents=True)
     (pkg / "__init__.py").write_text("")
     (pkg / "filters" / "__init__.py").write_text("from . import ukf\n")
-    (pkg / "filters" / "ukf.py").write_text("def f():\n    from terrain_estimation.tools.bench import x\n")
-    (pkg / "tools").mkdir()
-    (pkg / "tools" / "__init__.py").write_text("")
-    (pkg / "tools" / "bench.py").write_text("from ..filters.ukf import f\nx = 1\n")
+    (pkg / "filters" / "ukf.py").write_text("def f():\n    from terrain_analysis.tools.bench import x\n")
+    ana = tmp_path / "terrain_analysis"
+    (ana / "tools").mkdir(parents=True)
+    (ana / "__init__.py").write_text("")
+    (ana / "tools" / "__init__.py").write_text("")
+    (ana / "tools" / "bench.py").write_text(
+        "from terrain_estimation.filters.ukf import f\nfrom . import __name__ as n\nx = 1\n"
+    )
     known = {
         "terrain_estimation": pkg / "__init__.py",
         "terrain_estimation.filters": pkg / "filters" / "__init__.py",
         "terrain_estimation.filters.ukf": pkg / "filters" / "ukf.py",
-        "terrain_estimation.tools": pkg / "tools" / "__init__.py",
-        "terrain_estimation.tools.bench": pkg / "tools" / "bench.py",
+        "terrain_analysis": ana / "__init__.py",
+        "terrain_analysis.tools": ana / "tools" / "__init__.py",
+        "terrain_analysis.tools.bench": ana / "tools" / "bench.py",
     }
     graph = imports(known)
     assert graph["terrain_estimation.filters"] == {"terrain_estimation.filters.ukf"}
-    assert graph["terrain_estimation.filters.ukf"] == {"terrain_estimation.tools.bench"}
-    assert graph["terrain_estimation.tools.bench"] == {"terrain_estimation.filters.ukf"}
-    assert layer("terrain_estimation.tools.bench") > layer("terrain_estimation.filters.ukf")
-    assert strongly_connected(graph) == [("terrain_estimation.filters.ukf", "terrain_estimation.tools.bench")]
+    assert graph["terrain_estimation.filters.ukf"] == {"terrain_analysis.tools.bench"}
+    assert graph["terrain_analysis.tools.bench"] == {"terrain_estimation.filters.ukf", "terrain_analysis.tools"}
+    assert layer("terrain_analysis.tools.bench") > layer("vehicle_sim.plants") > layer("terrain_estimation.filters.ukf")
+    assert strongly_connected(graph) == [("terrain_analysis.tools.bench", "terrain_estimation.filters.ukf")]
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ import pytest
 from integration.replay import LockstepReplay
 
 from terrain_estimation.bag import read_bag
-from terrain_estimation.ros.nodes import make_estimator_node
+from terrain_estimation.nodes import make_estimator_node
 from terrain_estimation.tools.estimate import estimate_bag, numeric_fields
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"

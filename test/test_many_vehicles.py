@@ -30,7 +30,7 @@ pytest.importorskip("vehicle_sim")
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
-from terrain_estimation.ros.nodes import make_estimator_node  # noqa: E402
+from terrain_estimation.nodes import make_estimator_node  # noqa: E402
 from terrain_estimation.ros.qos import ESTIMATE_QOS, SENSOR_QOS  # noqa: E402
 from terrain_estimation.ros.time import sec_to_stamp, stamp_to_ns  # noqa: E402
 from terrain_msgs.msg import SoilStiffness  # noqa: E402
@@ -191,7 +191,7 @@ def test_vehicles_in_separate_processes_keep_to_their_namespaces(rclpy_context):
             [
                 sys.executable,
                 "-m",
-                "terrain_estimation.ros.nodes",
+                "terrain_estimation.nodes",
                 "--vehicle",
                 vehicle_kind(k),
                 "--ros-args",

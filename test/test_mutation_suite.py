@@ -1,6 +1,6 @@
 """Issue 19's mutation suite: every kind of damage to a shipped bag, through both offline tools.
 
-Each case of :data:`terrain_estimation.tools.mutate.MUTATIONS` damages a
+Each case of :data:`terrain_analysis.tools.mutate.MUTATIONS` damages a
 shipped bag (with rosbags alone), runs ``terrain-estimate`` and
 ``terrain-sim2real`` on it and holds them to the case's exit status and
 message, to "nothing non-finite written" and to "no input modified or
@@ -9,7 +9,7 @@ case through both tools; the other vehicles run every case through
 ``terrain-estimate`` and the input-level cases through ``terrain-sim2real``
 (their diagnoses take longer), to keep the suite inside its time budget.
 
-``python -m terrain_estimation.tools.mutate`` prints the same table for
+``python -m terrain_analysis.tools.mutate`` prints the same table for
 ``docs/results/robustness.md``.
 """
 
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from terrain_estimation.tools.mutate import DEFAULT_BAGS, MUTATIONS, Case, run_case
+from terrain_analysis.tools.mutate import DEFAULT_BAGS, MUTATIONS, Case, run_case
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 

@@ -66,7 +66,7 @@ def test_shared_section_holds_only_names_every_reader_declares(tmp_path):
 
 def test_live_node_refuses_an_unknown_name_before_rcl_ignores_it(tmp_path, capsys):
     """node_main checks the config file before handing it to rcl; build_node also the overrides' names."""
-    from terrain_estimation.ros.nodes import main
+    from terrain_estimation.nodes import main
 
     path = _write(tmp_path / "live.yaml", "/**/soil_stiffness", "filter:\n  typ: ekf\n")
     assert main(["--vehicle", "quarter_car", "--config", str(path)]) == 2

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import pytest
 
-from terrain_estimation.tools import qc_consistency as qcc
-from terrain_estimation.tools.reporting import write_section
+from terrain_analysis.reporting import write_section
+from terrain_analysis.tools import qc_consistency as qcc
 
 # (vehicle) → (cells, mean e²/σ² band, within-2σ band)
 BANDS = {

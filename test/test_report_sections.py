@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from terrain_estimation.tools.reporting import keep_sections, write_section
+from terrain_analysis.reporting import keep_sections, write_section
 
 
 def test_a_section_is_appended_then_replaced_in_place(tmp_path: Path) -> None:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-reproduce_qc = pytest.importorskip("terrain_estimation.tools.reproduce_qc")
+reproduce_qc = pytest.importorskip("terrain_analysis.tools.reproduce_qc")
 
 CASE_HEADINGS = [f"## Case {i} " for i in range(1, 9)]
 

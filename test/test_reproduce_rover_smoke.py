@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-reproduce_rover = pytest.importorskip("terrain_estimation.tools.reproduce_rover")
+reproduce_rover = pytest.importorskip("terrain_analysis.tools.reproduce_rover")
 pytest.importorskip("vehicle_sim.plants.rover")
 
 SECTIONS = (

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-reproduce_skid = pytest.importorskip("terrain_estimation.tools.reproduce_skid")
+reproduce_skid = pytest.importorskip("terrain_analysis.tools.reproduce_skid")
 pytest.importorskip("vehicle_sim.plants.skid_steer")
 
 SECTIONS = (

@@ -33,7 +33,7 @@ from robustness_harness import all_finite, bag_items
 
 from terrain_estimation.estimators.rover_noise import considered_variances
 from terrain_estimation.filters.base import GaussianState
-from terrain_estimation.ros.nodes import make_estimator_node
+from terrain_estimation.nodes import make_estimator_node
 from terrain_estimation.vehicles import VEHICLES, estimator_parameters
 
 WINDOW = 20

@@ -15,14 +15,14 @@ from collections.abc import Mapping
 import numpy as np
 import pytest
 
-from terrain_estimation.sim2real.attribution import (
+from terrain_analysis.sim2real.attribution import (
     AttributionSettings,
     FittedModel,
     _indistinguishable,
     _p_better,
     attribute,
 )
-from terrain_estimation.sim2real.model import Candidate, Channel, FitParameter, ReplayModel
+from terrain_analysis.sim2real.model import Candidate, Channel, FitParameter, ReplayModel
 
 SIGMA = 0.1
 F = 1.7

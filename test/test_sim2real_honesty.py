@@ -28,9 +28,9 @@ import numpy as np
 import pytest
 from test_sim2real_attribution import SIGMA, ToyModel, _signal
 
-from terrain_estimation.sim2real.attribution import AttributionSettings, attribute
-from terrain_estimation.sim2real.model import Candidate, FitParameter
-from terrain_estimation.sim2real.tolerance import ToleratedModel, tolerances, with_tolerances
+from terrain_analysis.sim2real.attribution import AttributionSettings, attribute
+from terrain_analysis.sim2real.model import Candidate, FitParameter
+from terrain_analysis.sim2real.tolerance import ToleratedModel, tolerances, with_tolerances
 
 REPO = Path(__file__).resolve().parents[1]
 FAST = AttributionSettings(bootstrap=100)
@@ -140,7 +140,7 @@ def test_skid_steer_rolling_resistance_within_tolerance_is_not_a_gap() -> None:
     a gap. With the config's tolerance (± 0.02) the nominal fit absorbs it: no significant gap."""
     from test_sim2real_skid_steer import VEHICLE, WARMUP, _data
 
-    from terrain_estimation.sim2real.skid_steer import SkidSteerReplay
+    from terrain_analysis.sim2real.skid_steer import SkidSteerReplay
     from vehicle_sim.effects import effects_for
     from vehicle_sim.plants.skid_steer import MANOEUVRES, SkidSteerVehicle, simulate_skid_steer
 
@@ -262,8 +262,8 @@ def test_white_residuals_keep_tight_intervals() -> None:
 
 
 def test_report_renders_the_new_verdicts() -> None:
-    from terrain_estimation.sim2real.diagnose import Diagnosis, WhereTable
-    from terrain_estimation.sim2real.report import diagnosis_markdown
+    from terrain_analysis.sim2real.diagnose import Diagnosis, WhereTable
+    from terrain_analysis.sim2real.report import diagnosis_markdown
 
     model = _toy({"bias": {"b": 0.14}}, seed=11)
     model.candidates = {"bias": Candidate("bias", (FitParameter("b", "m", 0.0, (-0.1, 0.1), 0.05),), "offset")}

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from terrain_estimation.sim2real.husky import (
+from terrain_analysis.sim2real.husky import (
     CHANNELS,
     NUISANCE_NAMES,
     PhysicsFit,
@@ -26,8 +26,8 @@ from terrain_estimation.sim2real.husky import (
     physical_ranges,
     score_run,
 )
-from terrain_estimation.sim2real.model import candidates_from_catalogue
-from terrain_estimation.sim2real.skid_steer import SkidSteerReplay, bag_data_from_arrays
+from terrain_analysis.sim2real.model import candidates_from_catalogue
+from terrain_analysis.sim2real.skid_steer import SkidSteerReplay, bag_data_from_arrays
 
 VEHICLE = husky_vehicle(accel_noise_std=0.3, gyro_noise_std=0.005)
 

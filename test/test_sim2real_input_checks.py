@@ -16,11 +16,11 @@ from typing import Any
 
 import pytest
 
+from terrain_analysis.sim2real import diagnose as diagnose_module
+from terrain_analysis.sim2real.inputs import screen_bag
+from terrain_analysis.tools.sim2real import main
 from terrain_estimation.bag import AtomicBagWriter, read_bag
 from terrain_estimation.cli import EXIT_INPUT, EXIT_INTERNAL
-from terrain_estimation.sim2real import diagnose as diagnose_module
-from terrain_estimation.sim2real.inputs import screen_bag
-from terrain_estimation.tools.sim2real import main
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 QC = BAGS / "quarter_car_graneville_iso_d_10ms"

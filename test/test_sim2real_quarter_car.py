@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from terrain_analysis.sim2real.attribution import attribute
+from terrain_analysis.sim2real.model import usable_mask
+from terrain_analysis.sim2real.quarter_car import build_model
+from terrain_analysis.tools.sim2real import main as sim2real_main
 from terrain_estimation.bag import AtomicBagWriter, read_bag
-from terrain_estimation.sim2real.attribution import attribute
-from terrain_estimation.sim2real.model import usable_mask
-from terrain_estimation.sim2real.quarter_car import build_model
-from terrain_estimation.tools.sim2real import main as sim2real_main
 from vehicle_sim.terrain.soils import soil_by_name
 from vehicle_sim.tools.simulate import record
 
@@ -140,7 +140,7 @@ def test_missing_topic_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFi
 def test_lrv_road_is_the_conditional_mean_of_the_profile() -> None:
     # Band-limited road (≤ 60 Hz) under white profile noise: the Wiener gain passes the band and
     # stops the noise-only band, and the spectral rate of a smooth signal is exact.
-    from terrain_estimation.sim2real.quarter_car import _spectral, _wiener_road
+    from terrain_analysis.sim2real.quarter_car import _spectral, _wiener_road
 
     rng = np.random.default_rng(0)
     dt, sigma_h = 1e-3, 1e-4

@@ -16,14 +16,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from terrain_estimation.sim2real.model import ReplayModel
-from terrain_estimation.sim2real.rover import (
+from terrain_analysis.sim2real.model import ReplayModel
+from terrain_analysis.sim2real.rover import (
     RoverReplay,
     build_model,
     build_model_from_series,
     series_from_run,
 )
-from terrain_estimation.sim2real.where import Sim2RealError
+from terrain_analysis.sim2real.where import Sim2RealError
 from vehicle_sim.effects import effects_for
 from vehicle_sim.plants.rover import RoverScenario, simulate_rover
 
@@ -192,7 +192,7 @@ def test_soil_change_location_refinement_corrects_a_start_off_by_12_cm(
     Withheld bag 1a648d392558 (a loose soil meeting a sharp step): the linearised scan put the change 12 cm late
     and the fit stayed there ("not explained, 6 % left"); the refinement brings it within 1 mm there.
     """
-    from terrain_estimation.sim2real.attribution import AttributionSettings, held_out_mask
+    from terrain_analysis.sim2real.attribution import AttributionSettings, held_out_mask
     from vehicle_sim.effects import CATALOGUE
 
     _, model = soil_change_run
@@ -212,7 +212,7 @@ def test_wheel_inversion_on_a_flat_torque_curve(nominal: tuple[Any, RoverReplay]
     overshot to the bounds there and the replay with the plant's own soil change left a gap 5000 times the
     nominal one.
     """
-    from terrain_estimation.sim2real.rover import _SoilVariant, _solve_wheels
+    from terrain_analysis.sim2real.rover import _SoilVariant, _solve_wheels
 
     _, model = nominal
     changed = {
@@ -255,7 +255,7 @@ def test_sensor_delay_is_below_the_noise_tests_at_2_cm_s() -> None:
 
 
 def _delay_report(delay: float, duration: float, seed: int, only: tuple[str, ...] | None = None) -> Any:
-    from terrain_estimation.sim2real.attribution import attribute
+    from terrain_analysis.sim2real.attribution import attribute
 
     effects = effects_for("rover", {"sensor_delay": {"sensor_delay": delay}} if delay > 0 else {})
     # The replay's wheel centres ride on the path (no sinkage transient): the plant's option for it.
@@ -291,7 +291,7 @@ def test_a_rover_sliding_backward_is_left_out(nominal: tuple[Any, RoverReplay]) 
     """A stall and slide back (velocimeter < 0 under forward-turning wheels: slip beyond 1) is outside
     the quasi-static replay: that stretch and half the 3 s smoothing window either side leave every fit,
     score and test (the engine's masks), with a note; a run without one keeps every sample."""
-    from terrain_estimation.sim2real.attribution import AttributionSettings, held_out_mask
+    from terrain_analysis.sim2real.attribution import AttributionSettings, held_out_mask
 
     run, model = nominal
     assert all(np.all(v) for v in model.valid.values())
@@ -392,7 +392,7 @@ def _write_small_bag(path: Path, nan_at: int | None) -> None:
 
 
 def test_non_finite_value_names_topic_field_and_value(tmp_path: Path) -> None:
-    from terrain_estimation.sim2real.rover import read_rover_bag
+    from terrain_analysis.sim2real.rover import read_rover_bag
 
     _write_small_bag(tmp_path / "bad", nan_at=5)
     with pytest.raises(Sim2RealError, match=r"/rover/imu: field linear_acceleration.x is nan at message 5"):

@@ -11,9 +11,9 @@ import pytest
 import scipy.io
 from scipy import integrate
 
-from terrain_estimation.sim2real.attribution import AttributionSettings, attribute
-from terrain_estimation.sim2real.model import ReplayModel
-from terrain_estimation.sim2real.single_wheel import (
+from terrain_analysis.sim2real.attribution import AttributionSettings, attribute
+from terrain_analysis.sim2real.model import ReplayModel
+from terrain_analysis.sim2real.single_wheel import (
     NOMINAL,
     RigTrials,
     SingleWheelModel,
@@ -36,7 +36,7 @@ from terrain_estimation.sim2real.single_wheel import (
     synthetic_trials,
     tip_slip,
 )
-from terrain_estimation.sim2real.where import Sim2RealError
+from terrain_analysis.sim2real.where import Sim2RealError
 from vehicle_sim.effects import effects_for
 from vehicle_sim.terrain.wong_reece import RigidWheel, WongReeceSoil, wheel_forces
 

@@ -8,9 +8,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from terrain_estimation.models.skid_steer import SkidSteerParams, axle_positions, quasi_static_loads
-from terrain_estimation.sim2real.model import ReplayModel
-from terrain_estimation.sim2real.skid_steer import (
+from terrain_analysis.sim2real.model import ReplayModel
+from terrain_analysis.sim2real.skid_steer import (
     SkidSteerReplay,
     bag_data_from_arrays,
     build_model,
@@ -18,7 +17,8 @@ from terrain_estimation.sim2real.skid_steer import (
     replay_imu,
     vehicle_from_config,
 )
-from terrain_estimation.sim2real.where import Sim2RealError
+from terrain_analysis.sim2real.where import Sim2RealError
+from terrain_estimation.models.skid_steer import SkidSteerParams, axle_positions, quasi_static_loads
 from vehicle_sim.effects import CATALOGUE, effects_for
 from vehicle_sim.plants.skid_steer import MANOEUVRES, SkidSteerSensors, SkidSteerVehicle, simulate_skid_steer
 
@@ -143,7 +143,7 @@ def test_bias_and_delay_do_not_rerun_the_dynamics():
 
 
 def test_attribution_names_the_effect_and_passes_a_control():
-    from terrain_estimation.sim2real.attribution import attribute
+    from terrain_analysis.sim2real.attribution import attribute
 
     model = _model(_simulate("s_shape", {"cornering_stiffness_change": {"cornering_stiffness_change": 0.5}}, 12.0))
     report = attribute(model)

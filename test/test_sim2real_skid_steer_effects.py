@@ -15,9 +15,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from terrain_estimation.sim2real.attribution import attribute
-from terrain_estimation.sim2real.model import candidates_from_catalogue
-from terrain_estimation.sim2real.skid_steer import SkidSteerReplay, bag_data_from_arrays, vehicle_from_config
+from terrain_analysis.sim2real.attribution import attribute
+from terrain_analysis.sim2real.model import candidates_from_catalogue
+from terrain_analysis.sim2real.skid_steer import SkidSteerReplay, bag_data_from_arrays, vehicle_from_config
 from vehicle_sim.effects import effects_for
 from vehicle_sim.plants.skid_steer import MANOEUVRES, SkidSteerVehicle, simulate_skid_steer
 

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from terrain_analysis.sim2real import Sim2RealError, diagnose_where
+from terrain_analysis.sim2real.report import write_report
 from terrain_estimation.bag import AtomicBagWriter, read_bag
-from terrain_estimation.sim2real import Sim2RealError, diagnose_where
-from terrain_estimation.sim2real.report import write_report
 from vehicle_sim.tools.simulate import record
 
 DURATION = 4.0
@@ -83,7 +83,7 @@ def test_noise_tests_false_alarm_rate_on_white_noise() -> None:
     """
     import numpy as np
 
-    from terrain_estimation.sim2real.where import WhereSettings, _channel
+    from terrain_analysis.sim2real.where import WhereSettings, _channel
 
     rng = np.random.default_rng(11)
     trials, flagged = 400, 0
@@ -98,7 +98,7 @@ def test_bias_floor_scales_with_the_channel_noise() -> None:
     """A bias far below the sensor noise is model-error allowance in any unit; one above the floor is a gap."""
     import numpy as np
 
-    from terrain_estimation.sim2real.where import WhereSettings, _channel
+    from terrain_analysis.sim2real.where import WhereSettings, _channel
 
     rng = np.random.default_rng(2)
     sigma = 0.002  # rad/s: a gyro, where an absolute 0.05 floor would hide any bias
@@ -114,7 +114,7 @@ def test_one_bad_sample_costs_one_sample() -> None:
     a burst of them, or an excursion over consecutive samples, stays in the statistics."""
     import numpy as np
 
-    from terrain_estimation.sim2real.where import WhereSettings, _channel, despike
+    from terrain_analysis.sim2real.where import WhereSettings, _channel, despike
 
     rng = np.random.default_rng(5)
     sigma = 0.3
@@ -150,9 +150,9 @@ def test_epoch_stamps_keep_their_spacing(tmp_path: Path) -> None:
     from geometry_msgs.msg import PointStamped
     from sensor_msgs.msg import Imu, JointState
 
+    from terrain_analysis.sim2real.model import StampOrigin
+    from terrain_analysis.sim2real.where import _read
     from terrain_estimation.ros.time import ns_to_stamp
-    from terrain_estimation.sim2real.model import StampOrigin
-    from terrain_estimation.sim2real.where import _read
 
     start = 1_732_760_302_708_794_534
     bag = tmp_path / "epoch"

@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from terrain_estimation.tools.skid_compare import _FilterRun, score_run, summarise
+from terrain_analysis.tools.skid_compare import _FilterRun, score_run, summarise
 
 
 def _sim(n: int = 1000) -> SimpleNamespace:
@@ -57,7 +57,7 @@ def test_a_window_without_estimates_is_an_error() -> None:
 
 def test_command_line_writes_its_section(tmp_path, capsys) -> None:
     """One seed of the acceleration run through every filter of the comparison; a partial set is no verdict."""
-    from terrain_estimation.tools.skid_compare import FILTERS, main
+    from terrain_analysis.tools.skid_compare import FILTERS, main
 
     out = tmp_path / "fair.md"
     assert main(["--seeds", "1", "--jobs", "1", "--scenarios", "straight_acceleration", "--out", str(out)]) == 0
@@ -70,7 +70,7 @@ def test_command_line_writes_its_section(tmp_path, capsys) -> None:
 
 def test_consider_section_holds_the_estimates_and_ranks_the_settings() -> None:
     """The sensitivity section: the same estimates in every row, the variance growing with what is considered."""
-    from terrain_estimation.tools.skid_compare import (
+    from terrain_analysis.tools.skid_compare import (
         CONSIDER_SETS,
         compare,
         consider_filters,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from terrain_estimation.tools.skid_real_check import main
+from terrain_analysis.tools.skid_real_check import main
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 CONFIG = Path(__file__).resolve().parents[1] / "config"

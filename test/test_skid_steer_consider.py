@@ -11,13 +11,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from terrain_analysis.tools.skid_compare import run_filter_on, score_run
 from terrain_estimation.estimators.skid_steer import SkidSteerEstimator, SkidSteerEstimatorConfig
 from terrain_estimation.estimators.skid_steer_consider import ConsiderConfig
 from terrain_estimation.models.skid_steer import SkidSteerParams
 from terrain_estimation.models.skid_steer_observer import SkidSteerInput
 from terrain_estimation.models.skid_steer_scales import SkidSteerTireScaleModel, TireScaleConfig
 from terrain_estimation.ros.skid_steer_params import estimator_config
-from terrain_estimation.tools.skid_compare import run_filter_on, score_run
 from terrain_estimation.vehicles import VEHICLES, estimator_parameters
 
 OFF = ConsiderConfig(parameters=())

@@ -21,7 +21,7 @@ from sensor_msgs.msg import Imu, JointState
 
 from terrain_estimation.bag import read_bag
 from terrain_estimation.estimators.skid_steer import SkidSteerEstimate
-from terrain_estimation.ros.nodes import make_estimator_node
+from terrain_estimation.nodes import make_estimator_node
 from terrain_estimation.ros.skid_steer import SkidSteerAdapter, husky_overrides
 from terrain_estimation.ros.time import ns_to_stamp
 from terrain_estimation.vehicles import estimator_parameters, get_vehicle

@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from terrain_estimation.tools.validate_sim2real import score, score_markdown
+from terrain_analysis.tools.validate_sim2real import score, score_markdown
 
 CONTEXT = {"command": "test", "date": "2026-01-01", "wall": 60.0, "jobs": 1, "seed": 1, "per_effect": 2}
 

@@ -1,4 +1,4 @@
-"""Posterior Cramér–Rao lower bound (terrain_estimation.analysis.pcrlb).
+"""Posterior Cramér–Rao lower bound (terrain_analysis.pcrlb).
 
 * On linear Gaussian models the bound is the Kalman filter's posterior
   covariance (to 1e-9 relative): a generic 4-state model and the quarter car
@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from terrain_estimation.analysis.pcrlb import DEFAULT_P0_DIAG, pcrlb, pcrlb_quarter_car, quarter_car_truth
+from terrain_analysis.pcrlb import DEFAULT_P0_DIAG, pcrlb, pcrlb_quarter_car, quarter_car_truth
 from terrain_estimation.filters import ExtendedKalmanFilter, KalmanFilter, SquareRootCubatureKalmanFilter
 from terrain_estimation.models.quarter_car import QuarterCarModel
 

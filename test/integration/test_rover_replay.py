@@ -40,7 +40,7 @@ from sensor_msgs.msg import Imu, JointState
 from integration.replay import LockstepReplay
 from terrain_estimation.bag import read_bag
 from terrain_estimation.models.terrain_response import PolynomialModel2D, polynomial_exponents
-from terrain_estimation.ros.nodes import make_estimator_node
+from terrain_estimation.nodes import make_estimator_node
 from terrain_estimation.ros.rover import WHEEL_ORDER, make_adapter
 from terrain_estimation.ros.time import sec_to_stamp, stamp_to_ns
 from terrain_estimation.tools.estimate import estimate_bag, numeric_fields

@@ -12,7 +12,7 @@ import yaml
 
 from integration.replay import LockstepReplay
 from terrain_estimation.bag import read_bag
-from terrain_estimation.ros.nodes import make_estimator_node
+from terrain_estimation.nodes import make_estimator_node
 from terrain_estimation.ros.time import stamp_to_sec
 from terrain_estimation.tools.estimate import numeric_fields
 

@@ -45,6 +45,8 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from terrain_estimation.errors import BagError
+
 __all__ = [
     "bag_contents",
     "bag_topics",
@@ -68,10 +70,6 @@ __all__ = [
 ]
 
 TERRAIN_MSGS = "terrain_msgs"
-
-
-class BagError(RuntimeError):
-    """A bag that cannot be read or written; the message says what and where."""
 
 
 def _share_dirs() -> list[Path]:

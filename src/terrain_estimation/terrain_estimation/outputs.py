@@ -27,7 +27,7 @@ Wiring a tool (``terrain-estimate``, ``terrain-sim2real``, ...)::
     # or, for a report directory:
     out = prepare_output_dir(args.output, overwrite=args.overwrite, inputs=[args.bag], tool="terrain-sim2real")
 
-The errors are :class:`OutputPathError` (a :class:`~terrain_estimation.bag.BagError`,
+The errors are :class:`OutputPathError` (a :class:`~terrain_estimation.errors.BagError`,
 so :func:`terrain_estimation.cli.run_cli` exits 2 with the message), which
 names the path and says what to do.
 """
@@ -39,7 +39,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Literal
 
-from terrain_estimation.bag import BagError
+from terrain_estimation.errors import BagError
 
 __all__ = [
     "BAG_STORAGE_SUFFIXES",

@@ -36,7 +36,7 @@ with ``b = h + 1.166`` (Siegmund): ν = 0.5, h = 20 gives ≈ 3·10⁹ steps
 (≈ 9·10³ h at 100 Hz). The real ``e_k`` are neither exactly unit nor white
 (the road between the samples, the profile noise, the start transient), so
 the false-alarm rate is *measured* on long no-change runs
-(:mod:`terrain_estimation.tools.reproduce_qc_change`, ``make reproduce-qc``),
+(:mod:`terrain_analysis.tools.reproduce_qc_change`, ``make reproduce-qc``),
 not taken from the formula. The detection delay is ``≈ h/(μ − ν)`` steps for
 a mean shift ``μ`` of ``e_k``.
 

@@ -1073,7 +1073,7 @@ def spin_node(node: Node, executor_kind: str = "events") -> None:
     over topics of different rates serves the 100 Hz accelerometers ten times
     faster than the 1 kHz profile, so filter steps outrun the road and are lost.
     The events executor runs the callbacks in arrival order at about a third of
-    the CPU (``python -m terrain_estimation.tools.bench_load``).
+    the CPU (``python -m terrain_analysis.tools.bench_load``).
     """
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 

@@ -357,7 +357,7 @@ class SkidSteerAdapter:
         """Run the estimator's compiled filter step (True, where it applies) or the Python reference step.
 
         The two give the same estimates to rounding (``test/test_skid_steer_compiled.py``); the switch is for
-        the benchmark's side-by-side figures (``terrain_estimation.tools.bench --only skid_replay``).
+        the benchmark's side-by-side figures (``terrain_analysis.tools.bench --only skid_replay``).
         """
         self.estimator.use_compiled = bool(enabled) and self.estimator.compiled_available
 

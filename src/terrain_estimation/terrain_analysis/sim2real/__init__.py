@@ -1,0 +1,11 @@
+"""Sim-to-real gap diagnosis (issue 6): where the nominal simulator disagrees with a bag."""
+
+from terrain_analysis.sim2real.where import (
+    SUPPORTED_VEHICLES,
+    Sim2RealError,
+    WhereReport,
+    WhereSettings,
+    diagnose_where,
+)
+
+__all__ = ["SUPPORTED_VEHICLES", "Sim2RealError", "WhereReport", "WhereSettings", "diagnose_where"]
