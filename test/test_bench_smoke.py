@@ -23,11 +23,15 @@ EXPECTED_ROWS = (
     "CKF",
     "UKF",
     "EKF",
+    "SCKF compiled step",
+    "EKF compiled step",
     "filterpy UKF (Merwe)",
     "bag quarter_car_graneville_iso_d_10ms",
     "bag lrv_regolith_iso_g_2ms",
     "core quarter_car",
+    "core quarter_car numpy path",
     "core lrv",
+    "core lrv numpy path",
     "simulate quarter_car",
     "simulate lrv",
 )
@@ -51,7 +55,17 @@ def test_bench_quick_prints_every_row(capsys, tmp_path):
     assert set(figures) >= {"machine", "config", "filters", "throughput", "simulator"}
     assert figures["machine"]["cpu_count"] >= 1
     assert "OPENBLAS_NUM_THREADS" in figures["machine"]
-    assert [r["filter"] for r in figures["filters"]] == ["SCKF", "CKF", "UKF", "EKF", "filterpy UKF (Merwe)"]
+    assert [r["filter"] for r in figures["filters"]] == [
+        "SCKF",
+        "CKF",
+        "UKF",
+        "EKF",
+        "SCKF compiled step",
+        "EKF compiled step",
+        "filterpy UKF (Merwe)",
+    ]
+    # The compiled steps run the same filters on the same data: the same final k_tot to rounding.
+    assert all(r["final_ktot_diff_vs_numpy_N_per_m"] < 1e-3 for r in figures["filters"][4:6])
     for r in figures["filters"]:
         assert r["steps"] == figures["config"]["steps"]
         assert math.isfinite(r["median_us"]) and r["median_us"] > 0 and r["p90_us"] >= r["median_us"]
@@ -64,6 +78,9 @@ def test_bench_quick_prints_every_row(capsys, tmp_path):
     bags = {r["row"]: r for r in figures["throughput"]}
     assert bags["bag quarter_car_graneville_iso_d_10ms"]["sim_s"] == pytest.approx(4.0, abs=0.02)
     assert 0.0 < bags["core quarter_car"]["filter_share"] <= 1.0
+    # The core rows run the node's path (the compiled step); the numpy rows beside them are labelled as such.
+    assert bags["core quarter_car"]["path"] == bags["core lrv"]["path"] == "compiled"
+    assert bags["core quarter_car numpy path"]["path"] == bags["core lrv numpy path"]["path"] == "numpy"
     rover = figures["rover"]
     assert [r["filter"] for r in rover["filters"]] == ["rover E1", "rover E2", "rover E3"]
     for r in rover["filters"]:

@@ -28,13 +28,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from terrain_estimation.estimators.soil_stiffness import (
-    SoilStiffnessEstimator,
-    SoilStiffnessEstimatorConfig,
-    _fit_weights,
-    _grid_offsets,
-    _local_quadratic,
-)
+from terrain_estimation.estimators.soil_road import _fit_weights, _grid_offsets, _local_quadratic
+from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimator, SoilStiffnessEstimatorConfig
 from terrain_estimation.filters.base import SqrtGaussianState, UpdateInfo
 from terrain_estimation.filters.sckf import SquareRootCubatureKalmanFilter
 from terrain_estimation.filters.sigma_points import _tria_rows, solve_lower, tria

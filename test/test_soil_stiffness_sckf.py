@@ -26,13 +26,13 @@ from terrain_estimation.estimators.soil_stiffness import (
 from terrain_estimation.estimators.soil_stiffness_sckf import (
     STATUS_FAILED,
     STATUS_OK,
-    _cholesky_lower,
-    _solve_lower,
-    _tria,
     model_operands,
     run_step,
     sckf_step,
 )
+from terrain_estimation.filters.compiled_linalg import cholesky_lower as _cholesky_lower
+from terrain_estimation.filters.compiled_linalg import solve_lower as _solve_lower
+from terrain_estimation.filters.compiled_linalg import tria as _tria
 from terrain_estimation.filters.sckf import SquareRootCubatureKalmanFilter
 from terrain_estimation.filters.sigma_points import solve_lower, tria
 from terrain_estimation.models.quarter_car import (

@@ -370,7 +370,7 @@ def test_lrv_regolith() -> None:
 
 
 def test_fit_weights_reproduce_polynomials_and_give_the_noise_gain() -> None:
-    from terrain_estimation.estimators.soil_stiffness import _fit_weights
+    from terrain_estimation.estimators.soil_road import _fit_weights
 
     rng = np.random.default_rng(7)
     pt = np.cumsum(rng.uniform(0.8e-3, 1.2e-3, 200))  # jittered ≈ 1 kHz stamps

@@ -12,7 +12,9 @@ One run prints, side by side (``make bench``):
    filters propagate all points as one ``(m, n, n)`` batch). Every filter is
    fed the same simulated drive (Graneville loam, ISO 8608 D, 10 m/s) and
    timed per step with ``time.perf_counter_ns`` after a warm-up; median and
-   90th percentile. "state bytes": our immutable state value (mean and P or
+   90th percentile. Beside them, the compiled SCKF and EKF steps that the
+   estimator node runs (``estimators.soil_stiffness_sckf`` / ``_ekf``) on the
+   same model and data. "state bytes": our immutable state value (mean and P or
    S); filterpy's filter object with its work arrays (that is its state).
 2. **Estimator throughput** as a multiple of real time: the offline bag run
    (:func:`~terrain_estimation.tools.estimate.estimate_bag`: bag reading,
@@ -20,8 +22,11 @@ One run prints, side by side (``make bench``):
    duration from the log stamps over wall time; and the ROS-free core
    (:class:`~terrain_estimation.estimators.soil_stiffness.SoilStiffnessEstimator`,
    same configuration) fed a ``vehicle_sim`` run directly, with the time
-   spent inside the filter measured by a timing proxy. The µs-per-step column
-   shows where the time goes: filter < core < bag.
+   spent inside the filter step measured around it. The "core" rows run what
+   the node runs (the compiled SCKF / EKF step); the "numpy path" rows beside
+   them run the same configuration through the filter's public numpy
+   ``predict``/``update`` (the reference path, timed by a proxy). The
+   µs-per-step column shows where the time goes: filter < core < bag.
 3. **Simulator** (``vehicle_sim`` ``simulate()``) as a multiple of real time.
 4. **Skid steer** ([SS], MODELS.md Part B): per-step time of the UKF, STUKF
    and AN-STUKF (:class:`~terrain_estimation.filters.an_stukf.AdaptiveStrongTrackingUKF`
@@ -49,7 +54,15 @@ One run prints, side by side (``make bench``):
    estimate of ``terrain-estimate`` in a fresh process (warm numba cache), for the new import chain and
    for the previous one (``scipy.stats`` imported first, as ``filters.adaptive`` did before, and the
    Python step).
-7. **Machine**: CPU count and load average (other processes on the CPUs
+7. **Quarter-car Monte Carlo** (``--only qc_monte_carlo``; issue 23's "the 100-run Monte Carlo with
+   every filter in 60 s or less on 2 cores"): the 100 runs of case 1 of ``make reproduce-qc``
+   (:func:`terrain_analysis.tools.reproduce_qc.build_plan`: Graneville loam, ISO D, 10 m/s, 12 s; every
+   filter the case runs: SCKF, EKF, both with the printed ``Q_k``, and the SCKF with the ln k_s state) on
+   a pool of 2 worker processes, twice in one run: before (the EKF through its public numpy
+   ``predict``/``update``, as before the compiled EKF step; the SCKF compiled as before) and after (both
+   compiled, the default). Wall time, CPU time of the workers, and the largest difference between the
+   two runs' k_s errors (the same rides, the same filters to rounding).
+8. **Machine**: CPU count and load average (other processes on the CPUs
    preempt long steps first, so a p90 far above the median usually means a
    busy machine), Python, numpy, ``OPENBLAS_NUM_THREADS`` (``make`` sets it to
    1; a threaded BLAS only adds stalls on these 5 × 5 matrices).
@@ -83,6 +96,8 @@ __all__ = [
     "ROVER_ROW_LABELS",
     "SIM2REAL_CASES",
     "BenchConfig",
+    "bench_qc_monte_carlo",
+    "format_qc_monte_carlo",
     "main",
     "run_bench",
     "format_report",
@@ -96,16 +111,21 @@ BAGS: tuple[tuple[str, str], ...] = (
     ("lrv_regolith_iso_g_2ms", "lrv"),
 )
 OUR_FILTERS: tuple[tuple[str, str], ...] = (("SCKF", "sckf"), ("CKF", "ckf"), ("UKF", "ukf"), ("EKF", "ekf"))
+#: The compiled steps the estimator node runs for its default SCKF and for the EKF (same model, same data).
+COMPILED_FILTERS: tuple[tuple[str, str], ...] = (("SCKF compiled step", "sckf"), ("EKF compiled step", "ekf"))
 FILTERPY_LABEL = "filterpy UKF (Merwe)"
 
 #: Every row label the report prints (the smoke test checks them all).
 ROW_LABELS: tuple[str, ...] = (
     "machine:",
     *(label for label, _ in OUR_FILTERS),
+    *(label for label, _ in COMPILED_FILTERS),
     FILTERPY_LABEL,
     *(f"bag {name}" for name, _ in BAGS),
     "core quarter_car",
+    "core quarter_car numpy path",
     "core lrv",
+    "core lrv numpy path",
     "simulate quarter_car",
     "simulate lrv",
 )
@@ -295,6 +315,42 @@ def bench_filters(cfg: BenchConfig) -> list[dict[str, Any]]:
             {"filter": label, "median_us": med, "p90_us": p90, "steps": len(times), "state_bytes": _deep_bytes(state)}
         )
 
+    # The compiled steps of the estimator (what the node runs): the same filters, model and data.
+    from terrain_estimation.estimators.soil_stiffness_ekf import run_ekf_step, warm_up_ekf
+    from terrain_estimation.estimators.soil_stiffness_kernels import model_operands
+    from terrain_estimation.estimators.soil_stiffness_sckf import run_step, warm_up
+
+    warm_up()
+    warm_up_ekf()
+    ops = model_operands(model)
+    assert ops is not None
+    no_profile_noise = np.zeros((2, 2))
+    for label, name in COMPILED_FILTERS:
+        filt = make_filter(name)
+        state = filt.initial_state(x0, P0)
+        run = run_step if name == "sckf" else run_ekf_step
+        x, fac = state.x, (state.S if name == "sckf" else state.P)
+        times = []
+        for k in range(n):
+            t0 = time.perf_counter_ns()
+            _, _, _, _, _, x, fac = run(ops, model, x, fac, inputs[k], DT, z[k], no_profile_noise, False, None)
+            t1 = time.perf_counter_ns()
+            if k >= cfg.warmup:
+                times.append(t1 - t0)
+        med, p90 = _percentiles_us(times)
+        final = dataclasses.replace(state, x=x, **({"S": fac} if name == "sckf" else {"P": fac}))
+        rows.append(
+            {
+                "filter": label,
+                "median_us": med,
+                "p90_us": p90,
+                "steps": len(times),
+                "state_bytes": _deep_bytes(final),
+                # The compiled step is the filter's public predict/update to rounding.
+                "final_ktot_diff_vs_numpy_N_per_m": abs(float(x[-1]) - final_ktot[name]),
+            }
+        )
+
     # filterpy: same model, same data; fx/hx see one sigma point (n,) at a time.
     def fx(x: Any, dt: float, u: Any) -> Any:
         return model.f(x, u, dt)
@@ -411,15 +467,53 @@ class _TimedFilter:
             self.ns += time.perf_counter_ns() - t0
 
 
-def bench_core(vehicle: str, result: Any) -> dict[str, Any]:
-    """The ROS-free estimator core fed a simulator run in the bag's order (profile, then IMU)."""
+class _TimedCompiledStep:
+    """Wraps an estimator's compiled filter step (``_compiled_step``: the SCKF or EKF) and accumulates its time.
+
+    Installed on the estimator instance, so that the estimator runs exactly the
+    path it runs in the node (the compiled step), with the filter's share
+    measured around it.
+    """
+
+    def __init__(self, est: Any, name: str) -> None:
+        self.inner = getattr(est, name)
+        self.ns = 0
+        self.steps = 0
+        setattr(est, name, self)
+
+    def __call__(self, *args: Any) -> Any:
+        t0 = time.perf_counter_ns()
+        try:
+            return self.inner(*args)
+        finally:
+            self.ns += time.perf_counter_ns() - t0
+            self.steps += 1
+
+
+def bench_core(vehicle: str, result: Any, numpy_path: bool = False) -> dict[str, Any]:
+    """The ROS-free estimator core fed a simulator run in the bag's order (profile, then IMU).
+
+    ``numpy_path`` False: the estimator the node builds (its configuration, the compiled SCKF / EKF step), the
+    step's time measured around the compiled call. True: the same configuration through the filter's public numpy
+    ``predict``/``update`` (``filter_impl``), timed by a proxy around them: the reference path, not what runs.
+    """
     from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimator, make_filter
     from terrain_estimation.ros.soil_stiffness import estimator_config
     from terrain_estimation.vehicles import estimator_parameters, get_vehicle
 
     config = estimator_config(estimator_parameters(get_vehicle(vehicle)))  # as the bag run
-    timed = _TimedFilter(make_filter(config.filter))
-    est = SoilStiffnessEstimator(config, filter_impl=timed)
+    timed: Any
+    if numpy_path:
+        timed = _TimedFilter(make_filter(config.filter))
+        est = SoilStiffnessEstimator(config, filter_impl=timed)
+    else:
+        est = SoilStiffnessEstimator(config)
+        compiled_step = "_compiled_step" if est._sckf is not None or est._ekf is not None else None
+        if compiled_step is None:  # e.g. an "expm" configuration: the node runs the public methods too
+            est = SoilStiffnessEstimator(config, filter_impl=_TimedFilter(est.filter))
+            timed = est.filter
+        else:
+            timed = _TimedCompiledStep(est, compiled_step)
     # Plain Python lists: the loop below should time the estimator, not numpy indexing.
     pt, ps, ph = (a.tolist() for a in (result.profile.t, result.profile.distance, result.profile.elevation))
     ta = result.t.tolist()
@@ -436,8 +530,10 @@ def bench_core(vehicle: str, result: Any) -> dict[str, Any]:
     steps = est.counters.steps
     duration = float(result.t[-1])
     return {
-        "row": f"core {vehicle}",
+        "row": f"core {vehicle}" + (" numpy path" if numpy_path else ""),
         "vehicle": vehicle,
+        "path": "numpy" if numpy_path else ("compiled" if isinstance(timed, _TimedCompiledStep) else "numpy"),
+        "filter": config.filter,
         "sim_s": duration,
         "wall_s": wall,
         "x_real_time": duration / wall if wall > 0 else math.inf,
@@ -731,7 +827,9 @@ def run_bench(cfg: BenchConfig, bags_dir: Path = BAGS_DIR) -> dict[str, Any]:
     for name, vehicle in BAGS:
         throughput.append(bench_bag(bags_dir / name, vehicle, cfg.repeats))
     throughput.append(bench_core("quarter_car", run_qc))
+    throughput.append(bench_core("quarter_car", run_qc, numpy_path=True))
     throughput.append(bench_core("lrv", run_lrv))
+    throughput.append(bench_core("lrv", run_lrv, numpy_path=True))
     out["throughput"] = throughput
     out["simulator"] = [sim_qc, sim_lrv]
     out["skid_steer"] = bench_skid(cfg)
@@ -800,6 +898,11 @@ def format_report(figures: dict[str, Any]) -> str:
             f"  {r['filter']:<22}{r['median_us']:>11.1f}{r['p90_us']:>10.1f}{r['ratio_to_our_ukf']:>11.2f}"
             f"{r['state_bytes']:>13d}"
         )
+    compiled_rows = [r for r in figures["filters"] if "final_ktot_diff_vs_numpy_N_per_m" in r]
+    lines.append(
+        "  (compiled step = what the estimator node runs for the SCKF / EKF; final k_tot differs from the numpy "
+        "filter's by " + ", ".join(f"{r['final_ktot_diff_vs_numpy_N_per_m']:.3g}" for r in compiled_rows) + " N/m)"
+    )
     fp = next(r for r in figures["filters"] if r["filter"] == FILTERPY_LABEL)
     lines.append(
         f"  (filterpy runs the same model and sigma points: final k_tot differs from our UKF by "
@@ -818,8 +921,9 @@ def format_report(figures: dict[str, Any]) -> str:
             f"{r['us_per_step']:>10.0f}{filt:>16}"
         )
     lines.append(
-        "  (bag = read + deserialise + adapter + estimator; core = estimator alone, same config; "
-        "filter = predict + update inside it)"
+        "  (bag = read + deserialise + adapter + estimator; core = estimator alone, same config, the node's path "
+        "(compiled filter step); core … numpy path = the same through the filter's public numpy predict/update, "
+        "the reference, not what runs; filter = the filter step inside it)"
     )
     lines += [
         "",
@@ -1060,6 +1164,97 @@ def format_skid_replay(figures: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+# ---------------------------------------------------------------------------
+# 7. Quarter-car Monte Carlo (case 1 of reproduce-qc), numpy EKF against compiled
+# ---------------------------------------------------------------------------
+
+#: The two runs of the Monte Carlo section: (label, the filters that run compiled).
+QC_MC_PATHS: tuple[tuple[str, tuple[str, ...]], ...] = (("before", ("sckf",)), ("after", ("sckf", "ekf")))
+QC_MC_JOBS = 2
+
+
+def _qc_mc_run(plan: Sequence[Any], compiled: tuple[str, ...], jobs: int) -> tuple[float, float, list[Any]]:
+    """(wall s, CPU s of the workers, results in plan order) of the rides of ``plan`` on ``jobs`` processes."""
+    import multiprocessing
+    import resource
+
+    from terrain_analysis.tools.reproduce_qc import run_one
+    from terrain_estimation.estimators.soil_stiffness import set_compiled_steps
+
+    order = sorted(range(len(plan)), key=lambda k: -plan[k].cost)  # longest first, as reproduce_qc does
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    results: dict[int, Any] = {}
+    with multiprocessing.get_context().Pool(jobs, initializer=set_compiled_steps, initargs=(compiled,)) as pool:
+        for k, out in zip(order, pool.imap(run_one, [plan[k] for k in order], chunksize=1), strict=True):
+            results[k] = out
+        pool.close()
+        pool.join()  # the workers are reaped: their CPU time is in RUSAGE_CHILDREN
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu, [results[k] for k in range(len(plan))]
+
+
+def bench_qc_monte_carlo(cfg: BenchConfig) -> dict[str, Any]:
+    """The quarter-car Monte Carlo section (module docstring, item 7)."""
+    from terrain_analysis.tools.reproduce_qc import Counts, build_plan
+    from terrain_estimation.estimators.soil_stiffness_ekf import warm_up_ekf
+    from terrain_estimation.estimators.soil_stiffness_sckf import warm_up
+
+    # Both steps compiled (or loaded from numba's cache) here, before the workers fork: no run times the compiler.
+    warm_up()
+    warm_up_ekf()
+    counts = Counts() if cfg.drive_s >= 10.0 else dataclasses.replace(Counts(), case1=4, case1_duration=4.0)
+    plan = [spec for spec in build_plan(counts) if spec.key == "case1"]
+    rows: list[dict[str, Any]] = []
+    traces: dict[str, list[Any]] = {}
+    for label, compiled in QC_MC_PATHS:
+        wall, cpu, results = _qc_mc_run(plan, compiled, QC_MC_JOBS)
+        traces[label] = [tr for _, tr in results]
+        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
+        rows.append({"path": label, "compiled": list(compiled), "wall_s": wall, "cpu_s": cpu, "load_avg_1min": load})
+    variants = [v.label for v in plan[0].variants]
+    diff = {
+        v: max(
+            float(np.max(np.abs(a[v].err - b[v].err))) for a, b in zip(traces["before"], traces["after"], strict=True)
+        )
+        for v in variants
+    }
+    return {
+        "runs": len(plan),
+        "ride_s": counts.case1_duration,
+        "jobs": QC_MC_JOBS,
+        "variants": variants,
+        "paths": rows,
+        "max_abs_err_diff_pct": diff,
+    }
+
+
+def format_qc_monte_carlo(figures: dict[str, Any]) -> str:
+    """The quarter-car Monte Carlo section of the readable table."""
+    lines = [
+        f"Quarter-car Monte Carlo: case 1 of reproduce-qc, {figures['runs']} runs of {figures['ride_s']:g} s "
+        f"(simulate + {len(figures['variants'])} filters: {', '.join(figures['variants'])}) on "
+        f"{figures['jobs']} worker processes",
+        f"  {'path':<8}{'compiled steps':<18}{'wall s':>9}{'CPU s':>9}{'load avg':>10}",
+    ]
+    for r in figures["paths"]:
+        lines.append(
+            f"  {r['path']:<8}{'+'.join(r['compiled']):<18}{r['wall_s']:>9.1f}{r['cpu_s']:>9.1f}"
+            f"{r['load_avg_1min']:>10.1f}"
+        )
+    old, new = figures["paths"][0], figures["paths"][1]
+    lines.append(
+        f"  speed-up {old['wall_s'] / new['wall_s']:.2f}× wall, {old['cpu_s'] / new['cpu_s']:.2f}× CPU; "
+        "before = the EKF through its public numpy predict/update (the previous path); CPU = the workers' user + "
+        "system time; wall time on a machine whose load average exceeds its 2 cores measures the other processes too"
+    )
+    worst = ", ".join(f"{k} {v:.2g}" for k, v in figures["max_abs_err_diff_pct"].items())
+    lines.append(f"  largest |k_s error before − after| over every estimate (percentage points): {worst}")
+    return "\n".join(lines)
+
+
 @cli_main("make bench")
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
@@ -1075,22 +1270,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--bags", metavar="DIR", default=str(BAGS_DIR), help="directory of the recorded bags")
     parser.add_argument(
         "--only",
-        choices=("skid_replay",),
-        help="run one section only: skid_replay = the skid-steer bags, compiled step against the previous one",
+        choices=("skid_replay", "qc_monte_carlo"),
+        help=(
+            "run one section only: skid_replay = the skid-steer bags, compiled step against the previous one; "
+            "qc_monte_carlo = the 100-run quarter-car Monte Carlo (reproduce-qc case 1, every filter) on 2 "
+            "processes, the numpy EKF against the compiled one"
+        ),
     )
     args = parser.parse_args(argv)
     cfg = BenchConfig.quick() if args.quick else BenchConfig()
-    if args.only == "skid_replay":
-        replay = bench_skid_replay(cfg, Path(args.bags))
-        print(format_skid_replay(replay))
-        if args.json:
-            path = Path(args.json)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(json.dumps({"machine": machine_info(), "skid_replay": replay}, indent=2) + "\n")
-            print(f"\nwrote {path}")
-        return 0
-    figures = run_bench(cfg, Path(args.bags))
-    print(format_report(figures))
+    sections: dict[str, tuple[Callable[[], dict[str, Any]], Callable[[dict[str, Any]], str]]] = {
+        "skid_replay": (lambda: bench_skid_replay(cfg, Path(args.bags)), format_skid_replay),
+        "qc_monte_carlo": (lambda: bench_qc_monte_carlo(cfg), format_qc_monte_carlo),
+    }
+    if args.only is not None:
+        run, fmt = sections[args.only]
+        section = run()
+        print(fmt(section))
+        figures = {"machine": machine_info(), args.only: section}
+    else:
+        figures = run_bench(cfg, Path(args.bags))
+        print(format_report(figures))
     if args.json:
         path = Path(args.json)
         path.parent.mkdir(parents=True, exist_ok=True)
