@@ -32,6 +32,7 @@ from terrain_estimation.models.rover import (
     terrain_contact_force_world,
 )
 from terrain_estimation.models.rover_estimators import SensorNoise, configuration
+from terrain_estimation.models.rover_sinkage import SinkageSoil
 from terrain_estimation.models.terrain_response import PolynomialModel2D, polynomial_exponents
 
 P = RoverParams()
@@ -131,9 +132,13 @@ CASE_UPHILL = steady_case(slope=-0.07, pull_ratio=0.06)
 
 @pytest.mark.parametrize("axes", [2, 1])
 def test_estimators_recover_the_steady_state(axes: int) -> None:
-    """E1 + E2 (two-axis cells) and E1 + E3 (single-axis) on an uphill slope of 4°."""
+    """E1 + E2 (two-axis cells) and E1 + E3 (single-axis) on an uphill slope of 4°.
+
+    The synthetic readings are of rigid ground (the three wheel centres on one plane): the estimator's
+    sinkage model is switched off, as it would be for a rover on hard ground.
+    """
     case = CASE_UPHILL
-    est = RoverTerrainEstimator(RoverEstimatorConfig(load_cell_axes=axes))
+    est = RoverTerrainEstimator(RoverEstimatorConfig(load_cell_axes=axes, sinkage=SinkageSoil(enabled=False)))
     feed(est, case, 12.0)
     est.flush()
     out = est.drain_estimates()
@@ -490,11 +495,11 @@ def test_start_segment_restarts_the_time_base() -> None:
 
 
 def test_vertical_velocity_choices() -> None:
-    """On a constant slope ż0^R = 0: the geometric estimate finds ≈ 0 and both choices agree."""
+    """On a constant slope of rigid ground ż0^R = 0: the geometric estimate finds ≈ 0 and both choices agree."""
     case = CASE_UPHILL
     outputs = {}
     for choice in ("geometric", "zero"):
-        est = RoverTerrainEstimator(RoverEstimatorConfig(vertical_velocity=choice))
+        est = RoverTerrainEstimator(RoverEstimatorConfig(vertical_velocity=choice, sinkage=SinkageSoil(enabled=False)))
         feed(est, case, 3.0, seed=7)
         outputs[choice] = est.drain_estimates()
     assert all(abs(e.body.vertical_speed) < 1e-4 for e in outputs["geometric"][3:])

@@ -322,3 +322,34 @@ def test_single_axis_cells_are_flagged_when_two_axes_are_configured():
     imu.header.stamp = sec_to_stamp(0.0)
     single.handle("imu", imu)
     assert not single.health.rejected and not single.health.warnings
+
+
+def test_innovation_test_is_consistent_on_a_nominal_run_and_flags_a_load_cell_offset_within_2_s():
+    """Issue 21: the diagnostics' NIS has its χ² mean on a nominal run; a 0.3 N load-cell offset WARNs within 2 s.
+
+    The NIS is over the channels whose S is sensor noise plus state uncertainty (velocimeter, slips, load
+    cells, ``estimators.rover_diagnostics``); before, the 20 channels of both filters gave about half their dof
+    on every nominal run and no check looked at the last 2 s.
+    """
+    fault_at, offset = 40.0, 0.3
+    adapter = _adapter()
+    nominal: list[float] = []
+    warned_at = None
+    for key, msg in _sim_messages(fault_at + 4.0):
+        if key == "truth_wheel_terrain":
+            continue
+        t = stamp_to_ns(msg.header.stamp) * 1e-9
+        if key == "load_middle" and t >= fault_at:
+            msg.wrench.force.z += offset
+        if adapter.handle(key, msg):
+            jumped = [w for w in adapter.health.warnings if w.startswith("innovations jumped")]
+            if t < fault_at:
+                assert not jumped, (t, jumped)
+                nominal = list(adapter.health.nis)
+            elif jumped and warned_at is None:
+                warned_at = t
+    assert adapter.health.nis_dof == 10
+    # Settled estimates only (the first 2 s describe the start); 2-40 s of terrain 1: 8.4 of 10 when written.
+    assert len(nominal) >= 180
+    assert 0.8 * 10 <= float(np.mean(nominal)) <= 1.2 * 10, np.mean(nominal)
+    assert warned_at is not None and warned_at - fault_at <= 2.0, warned_at

@@ -88,6 +88,11 @@ the estimate follows γ̌ = γ + b, W and DP inherit ``DP b`` and ``−W b``, an
 the published variances gain ``σ_b²``, ``DP² σ_b²``, ``W² σ_b²``. σ_b = 0.01
 rad a priori: ≈ 0.007 rad for the path beyond the parabola at κ' ≈ 1/l_w²
 and ≈ 0.007 rad for 5 mm of differential sinkage over 0.35 m, in quadrature.
+With the estimator's sinkage model (:mod:`~terrain_estimation.models.rover_sinkage`)
+the second share is what that model leaves: its nominal soil (on a soil 2–3×
+stiffer or softer the sinkage differences change by 35–50 %), the sinking
+rate lagging one step, and a rigid ground the model takes for soil (5 mm,
+the full share); σ_b was kept at 0.01 rad, not re-fitted.
 
 **τ_R over the step just observed** (:func:`smoothed_random_walk_variance`).
 The τ_R increment of a step reaches the encoders only at the next step, so

@@ -558,20 +558,33 @@ def contact_angle_measurement(
     pitch_rate: float,
     bogie_rate: float,
     vertical_speed: float = 0.0,
+    sinkage_rate: ArrayLike | None = None,
 ) -> Array:
     """Contact angles γ̌ = atan(−v_z/v_x) of the wheel-centre velocities J_a(Φ̂) Φ̂̇ (eq. 79) (rad), shape (3,).
 
     ``vertical_speed`` is ż0^R (0 in the paper; see :func:`contact_angles_with_vertical_speed`).
+    ``sinkage_rate``: ṡ_j of each wheel sinking into the soil (m/s, world
+    vertical, positive deeper); the path the soil forces act along is the
+    centre's velocity with ṡ_j added back to its v_z (None: 0, no sinkage).
     """
     g = configuration(pitch, bogie_angle)
     g_dot = generalised_velocity(pitch, forward_speed, pitch_rate, bogie_rate, vertical_speed=vertical_speed)
     v = wheel_centre_jacobian(params, g) @ g_dot
+    if sinkage_rate is not None:
+        v = v.copy()
+        v[:, 1] += np.asarray(sinkage_rate, dtype=float)
     return contact_angle_from_velocity(v)
 
 
-def _contact_angle_jacobian(params: RoverParams, inputs: Array, angle_step: float) -> tuple[Array, Array]:
-    """γ̌ (eq. 79) and dγ̌/d inputs for inputs = [θ, q1, ẋ^R, θ̇, q̇1(, ż^R)], shapes (3,), (3, n)."""
+def _contact_angle_jacobian(
+    params: RoverParams, inputs: Array, angle_step: float, sinkage_rate: Array | None = None
+) -> tuple[Array, Array]:
+    """γ̌ (eq. 79) and dγ̌/d inputs for inputs = [θ, q1, ẋ^R, θ̇, q̇1(, ż^R)], shapes (3,), (3, n).
+
+    ``sinkage_rate``: ṡ_j (m/s) added back to each centre's v_z (:func:`contact_angle_measurement`).
+    """
     n = inputs.size
+    sink_rate = np.zeros(3) if sinkage_rate is None else np.asarray(sinkage_rate, dtype=float)
     if n not in (5, 6):
         raise ValueError(f"inputs must be [θ, q1, ẋ^R, θ̇, q̇1] or with ż^R appended, got {n} values")
     pitch, bogie = float(inputs[0]), float(inputs[1])
@@ -583,7 +596,9 @@ def _contact_angle_jacobian(params: RoverParams, inputs: Array, angle_step: floa
             A = np.column_stack([A, np.zeros(N_COORDINATES)])
             A[_X0, 6], A[_Z0, 6] = math.sin(p_), math.cos(p_)
         jv = wheel_centre_jacobian(params, configuration(p_, b_)) @ A
-        return jv @ rates, jv
+        v_ = jv @ rates
+        v_[:, 1] += sink_rate
+        return v_, jv
 
     v, jv = velocities(pitch, bogie)
     gamma = contact_angle_from_velocity(v)
@@ -613,10 +628,15 @@ def contact_angle_covariance(
     return gamma, 0.5 * (out + out.T)
 
 
-def path_tangent_angles(params: RoverParams, pitch: float, bogie_angle: float) -> tuple[Array, Array]:
+def path_tangent_angles(
+    params: RoverParams, pitch: float, bogie_angle: float, sinkage: ArrayLike | None = None
+) -> tuple[Array, Array]:
     """Tangent angles of the parabola through the three wheel centres, and its error-cancelling weights.
 
     In the plane the three wheel centres lie on one path z_wc(x) (eq. 26).
+    A wheel sunk s_j into the soil rides s_j below that path: ``sinkage``
+    (m, (3,), positive deeper; None: 0) lifts each centre back onto it
+    before the parabola is fitted (:mod:`~terrain_estimation.models.rover_sinkage`).
     The parabola through them gives each wheel's path angle
     γ_geo,j = −atan(p'(x_j)) from the configuration alone; its error is the
     path's cubic and higher terms. Returns (γ_geo (3,), c (3,)) where c is
@@ -627,7 +647,8 @@ def path_tangent_angles(params: RoverParams, pitch: float, bogie_angle: float) -
     centres = wheel_centres(params, configuration(pitch, bogie_angle))
     x = centres[:, 0] - float(centres[:, 0].mean())
     A = np.column_stack([np.ones(3), x, x * x])
-    coef = np.linalg.solve(A, centres[:, 1])
+    heights = centres[:, 1] if sinkage is None else centres[:, 1] + np.asarray(sinkage, dtype=float)
+    coef = np.linalg.solve(A, heights)
     slope = coef[1] + 2.0 * coef[2] * x
     errors = []
     for m in (3, 4):
@@ -659,7 +680,13 @@ class VerticalSpeedEstimate:
 
 
 def contact_angles_with_vertical_speed(
-    params: RoverParams, inputs: ArrayLike, cov: ArrayLike, *, angle_step: float = 1e-6
+    params: RoverParams,
+    inputs: ArrayLike,
+    cov: ArrayLike,
+    *,
+    angle_step: float = 1e-6,
+    sinkage: ArrayLike | None = None,
+    sinkage_rate: ArrayLike | None = None,
 ) -> VerticalSpeedEstimate:
     """γ̌ of eq. 79 without the ż0^R = 0 assumption: ż0^R from the path through the three wheel centres.
 
@@ -684,29 +711,39 @@ def contact_angles_with_vertical_speed(
         inputs: [θ, q1, ẋ^R, θ̇, q̇1] (Estimator 1's posterior).
         cov: their covariance (5, 5).
         angle_step: forward-difference step in θ, q1 (rad).
+        sinkage: s_j (m, positive deeper) of each wheel below the path
+            (:func:`path_tangent_angles`); None: 0.
+        sinkage_rate: ṡ_j (m/s) of each wheel (:func:`contact_angle_measurement`); None: 0.
+
+    With sinkage the three centres ride s_j below the one path and move at
+    ṡ_j off it: the path is fitted through the centres lifted by s_j and each
+    wheel's kinematic angle is that of its velocity with ṡ_j added back, so
+    γ̌ is the angle of the undisturbed surface the soil forces act in.
     """
     x = np.asarray(inputs, dtype=float)
     if x.shape != (5,):
         raise ValueError(f"inputs must be [θ, q1, ẋ^R, θ̇, q̇1], got shape {x.shape}")
     c = np.asarray(cov, dtype=float)
-    gamma0, jac0 = _contact_angle_jacobian(params, np.append(x, 0.0), angle_step)
+    sink_rate = None if sinkage_rate is None else np.asarray(sinkage_rate, dtype=float)
+    gamma0, jac0 = _contact_angle_jacobian(params, np.append(x, 0.0), angle_step, sink_rate)
     sensitivity = jac0[:, 5]  # a_j = ∂γ_j/∂ż0^R
-    geo, weights = path_tangent_angles(params, float(x[0]), float(x[1]))
+    geo, weights = path_tangent_angles(params, float(x[0]), float(x[1]), sinkage)
     denominator = float(weights @ sensitivity)
     if not math.isfinite(denominator) or abs(denominator) < 1e-12:
-        gamma, gamma_cov = contact_angle_covariance(params, x, c, angle_step=angle_step)
-        return VerticalSpeedEstimate(gamma, gamma_cov, 0.0, 0.0)
+        gamma, jac = _contact_angle_jacobian(params, x, angle_step, sink_rate)
+        gamma_cov = jac @ c @ jac.T
+        return VerticalSpeedEstimate(gamma, 0.5 * (gamma_cov + gamma_cov.T), 0.0, 0.0)
     w = -float(weights @ (gamma0 - geo)) / denominator
     jac_geo = np.zeros((3, 5))
     for col, (dp, db) in enumerate(((angle_step, 0.0), (0.0, angle_step))):
-        jac_geo[:, col] = (path_tangent_angles(params, x[0] + dp, x[1] + db)[0] - geo) / angle_step
+        jac_geo[:, col] = (path_tangent_angles(params, x[0] + dp, x[1] + db, sinkage)[0] - geo) / angle_step
     dw = -(weights @ (jac0[:, :5] - jac_geo)) / denominator
     jac = jac0[:, :5] + np.outer(sensitivity, dw)
     # γ is an arctangent of the velocities: one Newton step on Σ c_j (γ_j(w) − γ_geo,j) = 0.
     pitch, bogie, speed, pitch_rate, bogie_rate = (float(v) for v in x)
-    gamma = contact_angle_measurement(params, pitch, bogie, speed, pitch_rate, bogie_rate, w)
+    gamma = contact_angle_measurement(params, pitch, bogie, speed, pitch_rate, bogie_rate, w, sink_rate)
     w -= float(weights @ (gamma - geo)) / denominator
-    gamma = contact_angle_measurement(params, pitch, bogie, speed, pitch_rate, bogie_rate, w)
+    gamma = contact_angle_measurement(params, pitch, bogie, speed, pitch_rate, bogie_rate, w, sink_rate)
     gamma_cov = jac @ c @ jac.T
     return VerticalSpeedEstimate(gamma, 0.5 * (gamma_cov + gamma_cov.T), w, float(dw @ c @ dw))
 
