@@ -70,6 +70,14 @@ TARGETS = {
 }
 """Issue 6's must-show thresholds."""
 
+STRUCTURE_TARGET = 0.80
+"""Issue 22: structure-gap controls (labels ``kind`` ``structure_control``) reported as structural."""
+
+GENERATORS = {"withheld": "vehicle_sim.tools.withheld", "independent": "vehicle_sim.independent"}
+"""Suite generators (``--generator``): the catalogue's own plants, or the independent code path (issue 22, item 7)."""
+INDEPENDENT_VEHICLES = ("quarter_car", "skid_steer")
+"""Vehicles the independent generator simulates."""
+
 VISIBLE_SNR = 3.0
 """Signature SNR from which an ideal (matched-filter) detector could see the withheld effect."""
 
@@ -257,6 +265,23 @@ def _control_name(label: Mapping[str, Any]) -> str:
     return f"control ({road} road)" if road in ROUGH_ROADS else "control"
 
 
+def _structure_right(r: Mapping[str, Any]) -> bool:
+    """A structure-gap control is scored right when the verdict is "the model's structure differs"."""
+    return r.get("kind") == "structure_differs"
+
+
+def _truth_name(label: Mapping[str, Any]) -> str:
+    """The confusion matrix's row of a label."""
+    kind = label["kind"]
+    if kind == "effect":
+        return str(label["effect"])
+    if kind == "control":
+        return _control_name(label)
+    if kind == "structure_control":
+        return "structure control"
+    return f"ooc: {label['out_of_catalogue']}"
+
+
 def _flat(values: Any, prefix: str = "") -> dict[str, float]:
     """{parameter: value} of a label's or a fit's (possibly per-effect nested) parameters."""
     out: dict[str, float] = {}
@@ -296,6 +321,7 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
         effect_rows = [(lab, r) for lab, r in rows if lab["kind"] == "effect"]
         controls = [(lab, r) for lab, r in rows if lab["kind"] == "control"]
         ooc = [(lab, r) for lab, r in rows if lab["kind"] == "out_of_catalogue"]
+        structure = [(lab, r) for lab, r in rows if lab["kind"] == "structure_control"]
         right = [
             (lab, r) for lab, r in effect_rows if r["kind"] == "explained" and r["explained_by"][0] == lab["effect"]
         ]
@@ -310,12 +336,7 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
         ]
         confusion: dict[str, Counter[str]] = defaultdict(Counter)
         for lab, r in rows:
-            truth = (
-                lab["effect"]
-                if lab["kind"] == "effect"
-                else (_control_name(lab) if lab["kind"] == "control" else f"ooc: {lab['out_of_catalogue']}")
-            )
-            confusion[truth][_predicted(r)] += 1
+            confusion[_truth_name(lab)][_predicted(r)] += 1
         per_effect: dict[str, dict[str, int]] = defaultdict(lambda: {"n": 0, "right": 0})
         for lab, r in effect_rows:
             per_effect[lab["effect"]]["n"] += 1
@@ -339,6 +360,8 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "ooc": len(ooc),
             "ooc_not_confident": frac(sum(r["kind"] != "explained" for _, r in ooc), len(ooc)),
             "ooc_structural": frac(sum(r["kind"] == "structure_differs" for _, r in ooc), len(ooc)),
+            "structure_controls": len(structure),
+            "structure_structural": frac(sum(_structure_right(r) for _, r in structure), len(structure)),
             "interval_coverage": frac(covered, intervals),
             "intervals": intervals,
             "median_shrinkage": statistics.median(shrink) if shrink else math.nan,
@@ -349,9 +372,7 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "misses": [
                 {
                     "id": r["id"],
-                    "truth": lab["effect"]
-                    if lab["kind"] == "effect"
-                    else (_control_name(lab) if lab["kind"] == "control" else lab["kind"]),
+                    "truth": _truth_name(lab),
                     "parameters": lab.get("parameters") or lab.get("out_of_catalogue_parameters"),
                     "verdict": r["verdict"],
                     "signature": _miss_signature(lab),
@@ -361,6 +382,7 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
                     (lab["kind"] == "effect" and r["kind"] == "explained" and r["explained_by"][0] == lab["effect"])
                     or (lab["kind"] == "control" and r["kind"] == "no_gap")
                     or (lab["kind"] == "out_of_catalogue" and r["kind"] != "explained")
+                    or (lab["kind"] == "structure_control" and _structure_right(r))
                 )
             ],
         }
@@ -370,6 +392,7 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
         eff = [(lab, r) for lab, r in every if lab["kind"] == "effect"]
         ctl = [(lab, r) for lab, r in every if lab["kind"] == "control"]
         ooc_all = [(lab, r) for lab, r in every if lab["kind"] == "out_of_catalogue"]
+        struct_all = [(lab, r) for lab, r in every if lab["kind"] == "structure_control"]
         right_all = [(lab, r) for lab, r in eff if r["kind"] == "explained" and r["explained_by"][0] == lab["effect"]]
         sh = [float(r["best"]["shrinkage"]["overall"]) for _, r in right_all if r.get("best")]
         out["all"] = {
@@ -383,6 +406,10 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
             if ooc_all
             else math.nan,
             "median_shrinkage": statistics.median(sh) if sh else math.nan,
+            "structure_controls": len(struct_all),
+            "structure_structural": sum(_structure_right(r) for _, r in struct_all) / len(struct_all)
+            if struct_all
+            else math.nan,
         }
         stratified = _stratified(eff)
         del stratified["per_effect_signature"]  # effect names are per vehicle
@@ -473,6 +500,9 @@ def _miss_tag(m: dict[str, Any]) -> str:
 def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
     """The validation section of docs/results/sim2real.md."""
     heading = "## Withheld-effect validation"
+    generator = context.get("generator", "withheld")
+    if generator != "withheld":
+        heading += f", {generator} generator"
     if context["seed"] != DEFAULT_SEED:
         heading += f", second suite (seed {context['seed']})"
     lines = [
@@ -488,7 +518,8 @@ def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
         )
         + f", {context['jobs']} worker(s)); suite seed {context['seed']}, {context['per_effect']} bags per effect, "
         f"{context.get('controls', context['per_effect'])} controls per vehicle. "
-        "The generator (`vehicle_sim.tools.withheld`, a separate process) wrote the bags, a manifest and the labels; "
+        f"The generator (`{GENERATORS.get(generator, generator)}`, a separate process) wrote the bags, a manifest "
+        "and the labels; "
         "the diagnosis got only the manifest's bag paths; the labels were read by the scorer after every "
         "diagnosis had finished.",
         "",
@@ -539,6 +570,14 @@ def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
         ok = math.isfinite(value) and value >= target
         lines.append(
             f"- {names[key]}: {_pct(value)} (target ≥ {100 * target:.0f} %) — **{'met' if ok else 'NOT met'}**"
+        )
+    if overall.get("structure_controls"):
+        value = overall["structure_structural"]
+        ok = math.isfinite(value) and value >= STRUCTURE_TARGET
+        lines.append(
+            f'- structure-gap controls reported as "structure differs" (issue 22): {_pct(value)} of '
+            f"{overall['structure_controls']} (target ≥ {100 * STRUCTURE_TARGET:.0f} %) — "
+            f"**{'met' if ok else 'NOT met'}**"
         )
     visible = overall.get("visible")
     if visible is not None:
@@ -595,6 +634,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--jobs", type=int, default=max(1, min(2, os.cpu_count() or 1)), help="worker processes")
     parser.add_argument("--report", help="write the Markdown section here (and a .json beside it)")
     parser.add_argument("--reuse", action="store_true", help="keep an existing suite and finished diagnoses")
+    parser.add_argument(
+        "--generator",
+        choices=sorted(GENERATORS),
+        default="withheld",
+        help="suite generator: withheld (the catalogue's plants) or independent (a separate code path, with "
+        "structure-gap controls; quarter_car and skid_steer)",
+    )
     args = parser.parse_args(argv)
     if args.per_effect < 1:
         parser.error(f"--per-effect must be ≥ 1, got {args.per_effect}")
@@ -604,26 +650,38 @@ def main(argv: Sequence[str] | None = None) -> int:
     unknown = [v for v in vehicles if v not in supported_vehicles()]
     if unknown:
         parser.error(f"no sim-to-real replay model for {', '.join(unknown)}; supported: {supported_vehicles()}")
+    if args.generator == "independent":
+        if not args.vehicle:
+            vehicles = [v for v in vehicles if v in INDEPENDENT_VEHICLES]
+        others = [v for v in vehicles if v not in INDEPENDENT_VEHICLES]
+        if others:
+            parser.error(
+                f"the independent generator simulates {', '.join(INDEPENDENT_VEHICLES)} only, not {', '.join(others)}"
+            )
     out = Path(args.out)
     suite = out / "suite"
     started = time.monotonic()
     reused_suite = bool(args.reuse and (suite / "manifest.json").exists())
     reused = len(list((out / "diagnoses").glob("*.json"))) if args.reuse and (out / "diagnoses").is_dir() else 0
     if not reused_suite:
-        cmd = [sys.executable, "-m", "vehicle_sim.tools.withheld", "--out", str(suite)]
+        cmd = [sys.executable, "-m", GENERATORS[args.generator], "--out", str(suite)]
         cmd += ["--per-effect", str(args.per_effect), "--seed", str(args.seed), "--jobs", str(args.jobs)]
-        if args.controls is not None:
-            cmd += ["--controls", str(args.controls)]
-        for v in vehicles:
-            cmd += ["--vehicle", v]
+        if args.generator == "independent":
+            cmd += ["--controls", str(args.controls if args.controls is not None else args.per_effect)]
+            cmd += ["--vehicle", *vehicles]
+        else:
+            if args.controls is not None:
+                cmd += ["--controls", str(args.controls)]
+            for v in vehicles:
+                cmd += ["--vehicle", v]
         print(f"validate-sim2real: generating the suite: {' '.join(cmd)}", file=sys.stderr)
         subprocess.run(cmd, check=True)
     results = diagnose_suite(suite, out / "diagnoses", args.jobs, vehicles, reuse=args.reuse)
     scores = score(suite, results)
     context = {
-        "command": MAKE_TARGETS.get(
-            args.seed, f"python -m terrain_analysis.tools.validate_sim2real --seed {args.seed}"
-        ),
+        "command": MAKE_TARGETS.get(args.seed, f"python -m terrain_analysis.tools.validate_sim2real --seed {args.seed}")
+        if args.generator == "withheld"
+        else f"python -m terrain_analysis.tools.validate_sim2real --generator {args.generator} --seed {args.seed}",
         "date": time.strftime("%Y-%m-%d"),
         "wall": time.monotonic() - started,
         "jobs": args.jobs,
@@ -632,6 +690,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "controls": args.controls if args.controls is not None else args.per_effect,
         "reused_suite": reused_suite,
         "reused_diagnoses": reused,
+        "generator": args.generator,
     }
     text = score_markdown(scores, context)
     (out / "validation.md").write_text(text, encoding="utf-8")
