@@ -19,10 +19,6 @@ from terrain_analysis.sim2real.single_wheel import (
     SingleWheelModel,
     WheelGeometry,
     WheelSoil,
-    _apply,
-    _rim_row,
-    _simpson_weights,
-    _soil_vector,
     analyses,
     baseline_comparison,
     bulldozing_resistance,
@@ -36,6 +32,8 @@ from terrain_analysis.sim2real.single_wheel import (
     synthetic_trials,
     tip_slip,
 )
+from terrain_analysis.sim2real.single_wheel_model import _apply
+from terrain_analysis.sim2real.single_wheel_physics import _rim_row, _simpson_weights, _soil_vector
 from terrain_analysis.sim2real.where import Sim2RealError
 from vehicle_sim.effects import effects_for
 from vehicle_sim.terrain.wong_reece import RigidWheel, WongReeceSoil, wheel_forces
@@ -118,7 +116,8 @@ def test_nominal_is_the_project_wong_reece_wheel() -> None:
 def test_catalogue_effects_are_the_rover_plants(effect: dict[str, dict[str, float]]) -> None:
     """slip_sinkage and soil_change reproduce the rover plant's terramechanics (full Wong–Reece) exactly."""
     from terrain_estimation.models.rover import RoverParams
-    from vehicle_sim.plants.rover import RoverScenario, _Terramechanics
+    from vehicle_sim.plants.rover import RoverScenario
+    from vehicle_sim.plants.rover_terramechanics import _Terramechanics
 
     soil, _ = _project_soil()
     scenario = RoverScenario(

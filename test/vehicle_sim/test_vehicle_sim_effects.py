@@ -14,10 +14,10 @@ from vehicle_sim.plants.rover import (
     RoverEffects,
     RoverScenario,
     RoverSensorNoise,
-    _Terramechanics,
     simulate_rover,
     undulated_path,
 )
+from vehicle_sim.plants.rover_terramechanics import _Terramechanics
 from vehicle_sim.plants.skid_steer import SkidSteerEffects
 from vehicle_sim.terrain.terramechanics_surrogate import fit_terramechanics_surrogate
 from vehicle_sim.terrain.wong_reece import TABLE_II_SOIL, RigidWheel

@@ -14,10 +14,10 @@ from vehicle_sim.plants.quarter_car import (
     QuarterCarSimulator,
     QuarterCarVehicle,
     Scenario,
-    _bekker_chain_force,
     enveloped_profile,
     simulate,
 )
+from vehicle_sim.plants.quarter_car_dynamics import _bekker_chain_force
 from vehicle_sim.terrain.profiles import RoadProfile, iso8608_profile, sinusoidal_profile
 from vehicle_sim.terrain.soils import GRANEVILLE_LOAM, LETE_SAND, LUNAR_REGOLITH, SoilPath
 

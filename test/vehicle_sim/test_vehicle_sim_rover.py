@@ -11,18 +11,18 @@ import pytest
 from terrain_estimation.models.rover import RoverParams, bogie_joint_position, mass_point_positions, wheel_centres
 from vehicle_sim.plants.rover import (
     CONTROL_RATE,
-    STEP_HEIGHT,
     TERRAIN_NUMBERS,
     TERRAINS,
     RoverEffects,
     RoverScenario,
     RoverSensorNoise,
     RoverSimulator,
-    _Terramechanics,
     simulate_rover,
     slope_path,
     solve_configuration,
 )
+from vehicle_sim.plants.rover_paths import STEP_HEIGHT
+from vehicle_sim.plants.rover_terramechanics import _Terramechanics
 from vehicle_sim.terrain.wong_reece import WongReeceSoil
 
 P = RoverParams()

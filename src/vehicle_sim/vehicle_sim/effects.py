@@ -62,18 +62,31 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 
-from vehicle_sim.plants.quarter_car import LRV_IGNORED_EFFECTS, QuarterCarEffects
-from vehicle_sim.plants.rover import RoverEffects
-from vehicle_sim.plants.skid_steer import SkidSteerEffects
+from vehicle_sim.effect_parameters import (
+    SWITCH_UNIT,
+    Effect,
+    EffectParameter,
+    Row,
+    axes,
+    components,
+    named,
+    parameter_count,
+    scalar,
+    switch,
+    table,
+)
+from vehicle_sim.plants.quarter_car_effects import LRV_IGNORED_EFFECTS, QuarterCarEffects
+from vehicle_sim.plants.rover_scenario import RoverEffects
+from vehicle_sim.plants.skid_steer_vehicle import SkidSteerEffects
 from vehicle_sim.terrain.wong_reece import TABLE_II_SOIL, WongReeceSoil
 
 __all__ = [
+    "SWITCH_UNIT",
     "CATALOGUE",
     "VEHICLES",
     "Effect",
@@ -82,226 +95,6 @@ __all__ = [
     "effects_for",
     "parameter_count",
 ]
-
-SWITCH_UNIT = "bool"
-
-
-@dataclass(frozen=True, kw_only=True)
-class EffectParameter:
-    """One scalar parameter of an effect.
-
-    Attributes:
-        name: parameter name: the plant's effects field, or ``<field>_<component>``
-            for a component of a tuple-valued field.
-        unit: physical unit (SI; "–" dimensionless, "bool" a switch).
-        off: value with which the parameter has no effect (the plant default).
-        fit_range: (low, high) physical range for fitting, finite, contains ``off``.
-        typical: typical magnitude of a real effect (a starting point / scale
-            for a fit; inside ``fit_range``).
-        description: what it is.
-        field: the plant's effects field it sets ("" for the rover soil-change
-            parameters, which build ``soil_change_soil``).
-        index: component of a tuple-valued field, None for a scalar field.
-        physical_range: (low, high) the values a real vehicle plausibly shows,
-            inside ``fit_range`` (None: the fit range itself). A fit that ends
-            outside it is not a physical explanation (:attr:`plausible_range`).
-    """
-
-    name: str
-    unit: str
-    off: float
-    fit_range: tuple[float, float]
-    typical: float
-    description: str
-    field: str = ""
-    index: int | None = None
-    physical_range: tuple[float, float] | None = None
-
-    def __post_init__(self) -> None:
-        low, high = (float(v) for v in self.fit_range)
-        object.__setattr__(self, "fit_range", (low, high))
-        if not (math.isfinite(low) and math.isfinite(high) and low < high):
-            raise ValueError(f"EffectParameter {self.name!r}: fit_range must be finite with low < high, got {self}")
-        if self.physical_range is not None:
-            p_low, p_high = (float(v) for v in self.physical_range)
-            object.__setattr__(self, "physical_range", (p_low, p_high))
-            if not (low <= p_low < p_high <= high and p_low <= self.off <= p_high):
-                raise ValueError(
-                    f"EffectParameter {self.name!r}: physical_range must lie in fit_range and contain off, got {self}"
-                )
-        if not (low <= self.off <= high and low <= self.typical <= high):
-            raise ValueError(f"EffectParameter {self.name!r}: off and typical must lie in fit_range, got {self}")
-        if not self.unit:
-            raise ValueError(f"EffectParameter {self.name!r}: unit must be given")
-
-    @property
-    def switch(self) -> bool:
-        """True for a boolean (on/off) parameter, which is not fitted."""
-        return self.unit == SWITCH_UNIT
-
-    @property
-    def plausible_range(self) -> tuple[float, float]:
-        """The physically plausible range (``physical_range``, or the fit range when none is stated)."""
-        return self.physical_range if self.physical_range is not None else self.fit_range
-
-
-@dataclass(frozen=True, kw_only=True)
-class Effect:
-    """One effect of the catalogue for one vehicle.
-
-    Attributes:
-        vehicle: key of :data:`CATALOGUE`.
-        name: effect name (issue 6's catalogue names and additions).
-        description: what the effect is in the plant.
-        physical_meaning: which real-world mechanism it stands for.
-        parameters: its parameters.
-    """
-
-    vehicle: str
-    name: str
-    description: str
-    physical_meaning: str
-    parameters: tuple[EffectParameter, ...]
-
-    @property
-    def parameter_names(self) -> tuple[str, ...]:
-        """Names of the parameters, in order."""
-        return tuple(p.name for p in self.parameters)
-
-    def parameter(self, name: str) -> EffectParameter:
-        """The parameter called ``name`` (KeyError if none)."""
-        for p in self.parameters:
-            if p.name == name:
-                return p
-        raise KeyError(f"{self.vehicle} effect {self.name!r} has no parameter {name!r}; has {self.parameter_names}")
-
-    def off_values(self) -> dict[str, float]:
-        """{parameter: off value}."""
-        return {p.name: p.off for p in self.parameters}
-
-    def typical_values(self) -> dict[str, float]:
-        """{parameter: typical value} (switches on)."""
-        return {p.name: p.typical for p in self.parameters}
-
-
-def parameter_count(effect: Effect) -> int:
-    """Continuous parameters a fit of ``effect`` estimates (switches are not counted)."""
-    return sum(1 for p in effect.parameters if not p.switch)
-
-
-# ---------------------------------------------------------------------------
-# Parameter helpers
-# ---------------------------------------------------------------------------
-
-
-def _scalar(
-    name: str,
-    unit: str,
-    off: float,
-    fit_range: tuple[float, float],
-    typical: float,
-    description: str,
-    physical_range: tuple[float, float] | None = None,
-) -> EffectParameter:
-    return EffectParameter(
-        name=name,
-        unit=unit,
-        off=off,
-        fit_range=fit_range,
-        typical=typical,
-        description=description,
-        field=name,
-        physical_range=physical_range,
-    )
-
-
-def _components(
-    field: str,
-    components: tuple[str, ...],
-    unit: str,
-    fit_range: tuple[float, float],
-    typical: float,
-    description: str,
-) -> tuple[EffectParameter, ...]:
-    return tuple(
-        EffectParameter(
-            name=f"{field}_{component}",
-            unit=unit,
-            off=0.0,
-            fit_range=fit_range,
-            typical=typical,
-            description=f"{description} ({component})",
-            field=field,
-            index=index,
-        )
-        for index, component in enumerate(components)
-    )
-
-
-def _switch(name: str, description: str) -> EffectParameter:
-    return EffectParameter(
-        name=name, unit=SWITCH_UNIT, off=0.0, fit_range=(0.0, 1.0), typical=1.0, description=description, field=name
-    )
-
-
-#: (name, description, physical meaning, parameters) of one effect.
-_Row = tuple[str, str, str, tuple[EffectParameter, ...]]
-
-
-def _table(vehicle: str, effects: tuple[_Row, ...]) -> Mapping[str, Effect]:
-    table: dict[str, Effect] = {}
-    for name, description, meaning, parameters in effects:
-        if name in table:
-            raise ValueError(f"duplicate effect {name!r} for {vehicle}")
-        table[name] = Effect(
-            vehicle=vehicle, name=name, description=description, physical_meaning=meaning, parameters=parameters
-        )
-    return MappingProxyType(table)
-
-
-# ---------------------------------------------------------------------------
-# Skid-steer
-# ---------------------------------------------------------------------------
-
-
-def _named(
-    name: str,
-    field: str,
-    index: int | None,
-    unit: str,
-    fit_range: tuple[float, float],
-    typical: float,
-    description: str,
-    physical_range: tuple[float, float] | None = None,
-) -> EffectParameter:
-    """A skid-steer parameter (off 0) with its field, component and plausible range given explicitly."""
-    return EffectParameter(
-        name=name,
-        unit=unit,
-        off=0.0,
-        fit_range=fit_range,
-        typical=typical,
-        description=description,
-        field=field,
-        index=index,
-        physical_range=physical_range,
-    )
-
-
-def _axes(
-    field: str,
-    unit: str,
-    fit_range: tuple[float, float],
-    typical: float,
-    description: str,
-    physical: tuple[float, float],
-) -> tuple[EffectParameter, ...]:
-    """One parameter per body axis x, y, z of a tuple field (``<field>_<axis>``), with a plausible range."""
-    return tuple(
-        _named(f"{field}_{axis}", field, i, unit, fit_range, typical, f"{description} ({axis})", physical)
-        for i, axis in enumerate("xyz")
-    )
-
 
 #: Skid steer (issue 22, "effects in their physical generality"). ``physical_range`` is the span a
 #: real vehicle of this kind plausibly shows; the fit range is wider, so that a fit which needs
@@ -317,7 +110,7 @@ def _axes(
 #: * rolling-radius error ±10 % (wear and pressure a few %, a soft off-road tire under load ≈ 10 %);
 #: * slope of the ground plane ±0.3 rad (±17°) in grade and bank, what a wheeled robot drives on;
 #: * lateral soil resistance 0–1 (firm ground 0, loam and sand 0.1–0.3, deep snow or sand ≈ 1).
-_SKID_STEER = _table(
+_SKID_STEER = table(
     "skid_steer",
     (
         (
@@ -325,11 +118,11 @@ _SKID_STEER = _table(
             "constant gyro bias per axis (yaw z; roll x and pitch y where the bag measures them)",
             "MEMS gyro turn-on bias / temperature drift",
             (
-                _scalar("gyro_bias", "rad/s", 0.0, (-0.1, 0.1), 0.005, "yaw (z) gyro bias", (-0.05, 0.05)),
-                _named(
+                scalar("gyro_bias", "rad/s", 0.0, (-0.1, 0.1), 0.005, "yaw (z) gyro bias", (-0.05, 0.05)),
+                named(
                     "gyro_bias_x", "gyro_bias_xy", 0, "rad/s", (-0.1, 0.1), 0.005, "roll (x) gyro bias", (-0.05, 0.05)
                 ),
-                _named(
+                named(
                     "gyro_bias_y", "gyro_bias_xy", 1, "rad/s", (-0.1, 0.1), 0.005, "pitch (y) gyro bias", (-0.05, 0.05)
                 ),
             ),
@@ -338,36 +131,32 @@ _SKID_STEER = _table(
             "accel_bias",
             "constant accelerometer bias per body axis",
             "accelerometer bias and IMU mounting misalignment (a tilt of α reads ≈ g α)",
-            _axes("accel_bias", "m/s²", (-2.0, 2.0), 0.1, "accelerometer bias", (-1.0, 1.0)),
+            axes("accel_bias", "m/s²", (-2.0, 2.0), 0.1, "accelerometer bias", (-1.0, 1.0)),
         ),
         (
             "accel_scale",
             "accelerometer scale-factor error per body axis: reading = (1 + s) × true specific force",
             "accelerometer sensitivity / calibration error",
-            _axes("accel_scale", "–", (-0.2, 0.2), 0.03, "accelerometer scale-factor error s", (-0.1, 0.1)),
+            axes("accel_scale", "–", (-0.2, 0.2), 0.03, "accelerometer scale-factor error s", (-0.1, 0.1)),
         ),
         (
             "gyro_scale",
             "yaw-gyro scale-factor error: reading = (1 + s) × true yaw rate",
             "gyro sensitivity / calibration error",
-            (_scalar("gyro_scale", "–", 0.0, (-0.2, 0.2), 0.03, "yaw-gyro scale-factor error s", (-0.1, 0.1)),),
+            (scalar("gyro_scale", "–", 0.0, (-0.2, 0.2), 0.03, "yaw-gyro scale-factor error s", (-0.1, 0.1)),),
         ),
         (
             "sensor_delay",
             "IMU stream latency relative to the wheel encoders: the IMU reading stamped t is that of t − d",
             "IMU driver / bus / filter latency larger than the encoders'",
-            (
-                _scalar(
-                    "sensor_delay", "s", 0.0, (0.0, 0.4), 0.05, "IMU latency (relative to the encoders)", (0.0, 0.3)
-                ),
-            ),
+            (scalar("sensor_delay", "s", 0.0, (0.0, 0.4), 0.05, "IMU latency (relative to the encoders)", (0.0, 0.3)),),
         ),
         (
             "wheel_speed_delay",
             "wheel-encoder stream latency relative to the IMU: the joint_states report stamped t counts at t − d",
             "motor-driver / CAN / serial latency of the encoder stream larger than the IMU's",
             (
-                _scalar(
+                scalar(
                     "wheel_speed_delay", "s", 0.0, (0.0, 0.4), 0.05, "encoder latency (relative to the IMU)", (0.0, 0.3)
                 ),
             ),
@@ -377,7 +166,7 @@ _SKID_STEER = _table(
             "true rolling radius = nominal (1 + e)",
             "tire wear, pressure, load-dependent effective rolling radius",
             (
-                _scalar(
+                scalar(
                     "wheel_radius_error", "–", 0.0, (-0.2, 0.2), 0.03, "relative rolling-radius error e", (-0.1, 0.1)
                 ),
             ),
@@ -386,25 +175,25 @@ _SKID_STEER = _table(
             "friction_change",
             "true friction coefficient μ = nominal μ × factor",
             "different ground (wet, loose, grass) than the nominal μ was identified on",
-            (_scalar("friction_change", "–", 1.0, (0.3, 2.0), 0.8, "friction factor"),),
+            (scalar("friction_change", "–", 1.0, (0.3, 2.0), 0.8, "friction factor"),),
         ),
         (
             "cornering_stiffness_change",
             "true cornering stiffness C_α = nominal × factor",
             "tire pressure, load and ground dependence of the lateral stiffness",
-            (_scalar("cornering_stiffness_change", "–", 1.0, (0.3, 3.0), 0.7, "cornering-stiffness factor"),),
+            (scalar("cornering_stiffness_change", "–", 1.0, (0.3, 3.0), 0.7, "cornering-stiffness factor"),),
         ),
         (
             "load_transfer_dynamics",
             "sprung-mass roll/pitch dynamics: loads lag the accelerations, the IMU tilts with the body",
             "suspension compliance (quasi-static load transfer in the nominal model)",
-            (_switch("load_transfer_dynamics", "roll/pitch load-transfer dynamics on"),),
+            (switch("load_transfer_dynamics", "roll/pitch load-transfer dynamics on"),),
         ),
         (
             "tire_relaxation",
             "first-order tire force lag with a relaxation length",
             "tire carcass deflection before the contact patch slides (Pacejka ch. 7)",
-            (_switch("tire_relaxation", "tire force lag on"),),
+            (switch("tire_relaxation", "tire force lag on"),),
         ),
         (
             "terrain_grade",
@@ -413,10 +202,10 @@ _SKID_STEER = _table(
             "against the slope and the loads shift downhill",
             "driving on a slope (fore-aft and side) the nominal model takes as level",
             (
-                _named(
+                named(
                     "terrain_grade", "terrain_slope", 0, "rad", (-0.4, 0.4), 0.05, "grade at start heading", (-0.3, 0.3)
                 ),
-                _named(
+                named(
                     "terrain_bank", "terrain_slope", 1, "rad", (-0.4, 0.4), 0.05, "bank at start heading", (-0.3, 0.3)
                 ),
             ),
@@ -426,7 +215,7 @@ _SKID_STEER = _table(
             "lateral soil resistance F_b = −c_b F_z tanh(v_y / 0.05 m/s) per wheel against its lateral sliding: "
             "a resistive yaw moment in skid-steer turns",
             "deformable ground: the sunk tires bulldoze soil sideways and shear the rut when the vehicle skids",
-            (_scalar("turning_resistance", "–", 0.0, (0.0, 1.5), 0.15, "lateral soil resistance c_b", (0.0, 1.0)),),
+            (scalar("turning_resistance", "–", 0.0, (0.0, 1.5), 0.15, "lateral soil resistance c_b", (0.0, 1.0)),),
         ),
     ),
 )
@@ -446,7 +235,15 @@ _SOIL_CHANGE = {
     "soil_change_shear_modulus_scale": ("shear_deformation_modulus", "scale"),
 }
 
-_ROVER = _table(
+
+def _soil_change(
+    name: str, unit: str, off: float, fit_range: tuple[float, float], typical: float, description: str
+) -> EffectParameter:
+    """A rover soil-change parameter: no plant field; it builds ``soil_change_soil`` (:data:`_SOIL_CHANGE`)."""
+    return EffectParameter(name=name, unit=unit, off=off, fit_range=fit_range, typical=typical, description=description)
+
+
+_ROVER = table(
     "rover",
     (
         (
@@ -454,7 +251,7 @@ _ROVER = _table(
             "short-wavelength undulation A (1 − cos(2π x/λ)) added to the wheel-centre path",
             "terrain roughness/curvature moving the body vertically, breaking the estimators' ż0^R ≈ 0",
             (
-                _scalar(
+                scalar(
                     "path_undulation_amplitude",
                     "m",
                     0.0,
@@ -462,64 +259,59 @@ _ROVER = _table(
                     0.003,
                     "undulation amplitude A (half the peak-to-peak)",
                 ),
-                _scalar("path_undulation_wavelength", "m", 0.5, (0.3, 3.0), 0.5, "undulation wavelength λ"),
+                scalar("path_undulation_wavelength", "m", 0.5, (0.3, 3.0), 0.5, "undulation wavelength λ"),
             ),
         ),
         (
             "load_cell_bias",
             "constant offset of each axial load cell F_L",
             "load-cell zero drift (temperature, mounting preload)",
-            _components("load_cell_bias", _ROVER_WHEELS, "N", (-10.0, 10.0), 1.0, "axial load-cell bias"),
+            components("load_cell_bias", _ROVER_WHEELS, "N", (-10.0, 10.0), 1.0, "axial load-cell bias"),
         ),
         (
             "load_cell_crosstalk",
             "each load-cell axis reads c times the other axis",
             "imperfect decoupling / misalignment of the two-axis load cells",
-            (_scalar("load_cell_crosstalk", "–", 0.0, (-0.1, 0.1), 0.02, "cross-talk fraction c"),),
+            (scalar("load_cell_crosstalk", "–", 0.0, (-0.1, 0.1), 0.02, "cross-talk fraction c"),),
         ),
         (
             "slip_sinkage",
             "pressure–sinkage moduli fall with slip, k_eff = k/(1 + c |i|) (force-level, both soil models)",
             "slip-sinkage: a slipping wheel digs in deeper than static pressure–sinkage predicts (Lyasko, Ding)",
-            (_scalar("slip_sinkage_coefficient", "–", 0.0, (0.0, 2.0), 0.5, "slip-sinkage coefficient c"),),
+            (scalar("slip_sinkage_coefficient", "–", 0.0, (0.0, 2.0), 0.5, "slip-sinkage coefficient c"),),
         ),
         (
             "soil_change",
             "beyond a wheel-centre x the wheels run on a changed soil (scales of the scenario soil)",
             "patchy terrain: the soil parameters are not constant along the traverse",
             (
-                _scalar("soil_change_distance", "m", 0.0, (0.0, 10.0), 1.0, "wheel-centre x of the change"),
-                EffectParameter(
-                    name="soil_change_cohesion_scale",
-                    unit="–",
-                    off=1.0,
-                    fit_range=(0.0, 5.0),
-                    typical=0.5,
-                    description="cohesion c after the change / before",
+                scalar("soil_change_distance", "m", 0.0, (0.0, 10.0), 1.0, "wheel-centre x of the change"),
+                _soil_change(
+                    "soil_change_cohesion_scale", "–", 1.0, (0.0, 5.0), 0.5, "cohesion c after the change / before"
                 ),
-                EffectParameter(
-                    name="soil_change_friction_angle_change",
-                    unit="rad",
-                    off=0.0,
-                    fit_range=(-0.15, 0.15),
-                    typical=-0.05,
-                    description="internal friction angle φ after − before",
+                _soil_change(
+                    "soil_change_friction_angle_change",
+                    "rad",
+                    0.0,
+                    (-0.15, 0.15),
+                    -0.05,
+                    "internal friction angle φ after − before",
                 ),
-                EffectParameter(
-                    name="soil_change_modulus_scale",
-                    unit="–",
-                    off=1.0,
-                    fit_range=(0.6, 4.0),
-                    typical=0.7,
-                    description="pressure–sinkage moduli k1, k2 (k_c, k_φ) after / before",
+                _soil_change(
+                    "soil_change_modulus_scale",
+                    "–",
+                    1.0,
+                    (0.6, 4.0),
+                    0.7,
+                    "pressure–sinkage moduli k1, k2 (k_c, k_φ) after / before",
                 ),
-                EffectParameter(
-                    name="soil_change_shear_modulus_scale",
-                    unit="–",
-                    off=1.0,
-                    fit_range=(0.25, 4.0),
-                    typical=1.5,
-                    description="shear deformation modulus K_s after / before",
+                _soil_change(
+                    "soil_change_shear_modulus_scale",
+                    "–",
+                    1.0,
+                    (0.25, 4.0),
+                    1.5,
+                    "shear deformation modulus K_s after / before",
                 ),
             ),
         ),
@@ -527,22 +319,22 @@ _ROVER = _table(
             "grousers",
             "soil sheared at the grouser tips: soil model for radius r_w + h_g at the tip slip",
             "grousers (lugs) on the wheel rim, absent from the smooth rigid-wheel model",
-            (_scalar("grouser_height", "m", 0.0, (0.0, 0.02), 0.005, "grouser height h_g above the rim"),),
+            (scalar("grouser_height", "m", 0.0, (0.0, 0.02), 0.005, "grouser height h_g above the rim"),),
         ),
         (
             "imu_bias",
             "constant accelerometer (x, z) and pitch-gyro biases",
             "IMU turn-on bias / drift and mounting misalignment",
             (
-                *_components("imu_accel_bias", ("x", "z"), "m/s²", (-0.5, 0.5), 0.05, "accelerometer bias"),
-                _scalar("imu_gyro_bias", "rad/s", 0.0, (-0.05, 0.05), 0.005, "pitch-rate gyro bias"),
+                *components("imu_accel_bias", ("x", "z"), "m/s²", (-0.5, 0.5), 0.05, "accelerometer bias"),
+                scalar("imu_gyro_bias", "rad/s", 0.0, (-0.05, 0.05), 0.005, "pitch-rate gyro bias"),
             ),
         ),
         (
             "sensor_delay",
             "latency of every measured channel, rounded to whole 20 ms samples (effort not delayed)",
             "sensor / bus latency relative to the commanded torques",
-            (_scalar("sensor_delay", "s", 0.0, (0.0, 0.2), 0.04, "latency"),),
+            (scalar("sensor_delay", "s", 0.0, (0.0, 0.2), 0.04, "latency"),),
         ),
     ),
 )
@@ -571,13 +363,13 @@ def _quarter_car_table(vehicle: str, *, lrv: bool) -> Mapping[str, Effect]:
     wheel_sensor = not lrv
 
     def accel(field_body: str, field_wheel: str, **kwargs: Any) -> tuple[EffectParameter, ...]:
-        body = _scalar(field_body, **kwargs)
+        body = scalar(field_body, **kwargs)
         if not wheel_sensor:
             return (body,)
-        return (body, _scalar(field_wheel, **kwargs))
+        return (body, scalar(field_wheel, **kwargs))
 
     def delay(name: str, description: str) -> EffectParameter:
-        return _scalar(name, "s", 0.0, (0.0, 0.35), 0.02, description, physical_range=(0.0, 0.3))
+        return scalar(name, "s", 0.0, (0.0, 0.35), 0.02, description, physical_range=(0.0, 0.3))
 
     delays = (
         delay("sensor_delay", "latency common to the accelerometers (one IMU bus)"),
@@ -585,7 +377,7 @@ def _quarter_car_table(vehicle: str, *, lrv: bool) -> Mapping[str, Effect]:
         *((delay("sensor_delay_wheel", "latency of the wheel accelerometer stream"),) if wheel_sensor else ()),
         delay("sensor_delay_profile", "latency of the road-profile stream"),
     )
-    effects: tuple[_Row, ...] = (
+    effects: tuple[Row, ...] = (
         (
             "accel_bias",
             "constant bias of the vertical accelerometers (body" + (", wheel)" if wheel_sensor else ")"),
@@ -630,7 +422,7 @@ def _quarter_car_table(vehicle: str, *, lrv: bool) -> Mapping[str, Effect]:
             "Bekker-type nonlinear pressure–sinkage: n > 1 stiffens, n < 1 softens under extra load; ζ ≠ 1 a "
             "pre-consolidated / crusted soil or a reloaded rut whose power law does not start at the static sinkage",
             (
-                _scalar(
+                scalar(
                     "soil_exponent",
                     "–",
                     1.0,
@@ -639,7 +431,7 @@ def _quarter_car_table(vehicle: str, *, lrv: bool) -> Mapping[str, Effect]:
                     "soil exponent n (off at n = 1, the linear soil)",
                     physical_range=(0.3, 2.0),
                 ),
-                _scalar(
+                scalar(
                     "soil_origin_ratio",
                     "–",
                     1.0,
@@ -654,31 +446,31 @@ def _quarter_car_table(vehicle: str, *, lrv: bool) -> Mapping[str, Effect]:
             "wheel_liftoff",
             "unilateral tire/soil contact: no tension, the wheel can leave the ground",
             "wheel hop on rough ground (the nominal contact is bilateral)",
-            (_switch("wheel_liftoff", "unilateral contact on"),),
+            (switch("wheel_liftoff", "unilateral contact on"),),
         ),
         (
             "suspension_friction",
             "Coulomb friction in the suspension",
             "damper seal / linkage friction",
-            (_scalar("suspension_friction", "N", 0.0, (0.0, 500.0), 50.0, "friction force", (0.0, 300.0)),),
+            (scalar("suspension_friction", "N", 0.0, (0.0, 500.0), 50.0, "friction force", (0.0, 300.0)),),
         ),
         (
             "tire_damping",
             "viscous damping in parallel with the tire/soil spring",
             "tire carcass and soil damping",
-            (_scalar("tire_damping", "N·s/m", 0.0, (0.0, 5000.0), 500.0, "tire damping coefficient", (0.0, 3000.0)),),
+            (scalar("tire_damping", "N·s/m", 0.0, (0.0, 5000.0), 500.0, "tire damping coefficient", (0.0, 3000.0)),),
         ),
         (
             "tire_enveloping",
             "road input averaged over the tire contact length",
             "tire enveloping: the contact patch filters short-wavelength roughness",
-            (_scalar("tire_contact_length", "m", 0.0, (0.0, 0.5), 0.15, "contact length", (0.0, 0.4)),),
+            (scalar("tire_contact_length", "m", 0.0, (0.0, 0.5), 0.15, "contact length", (0.0, 0.4)),),
         ),
         (
             "sprung_mass_change",
             "true sprung mass = nominal (1 + Δ)",
             "payload / fuel / passengers differing from the nominal mass",
-            (_scalar("sprung_mass_change", "–", 0.0, (-0.3, 0.5), 0.1, "relative sprung-mass change Δ"),),
+            (scalar("sprung_mass_change", "–", 0.0, (-0.3, 0.5), 0.1, "relative sprung-mass change Δ"),),
         ),
     )
     if lrv:
@@ -688,7 +480,7 @@ def _quarter_car_table(vehicle: str, *, lrv: bool) -> Mapping[str, Effect]:
             for name, description, meaning, parameters in effects
             if not all(p.field in ignored for p in parameters)
         )
-    return _table(vehicle, effects)
+    return table(vehicle, effects)
 
 
 _CLASSES: dict[str, type] = {
@@ -765,8 +557,8 @@ def _fields(effect: Effect, values: Mapping[str, float], soil: WongReeceSoil) ->
             fields[p.field] = bool(values[p.name])
         else:
             fields[p.field] = values[p.name]
-    for name, components in tuples.items():
-        fields[name] = tuple(components[i] for i in range(len(components)))
+    for name, parts in tuples.items():
+        fields[name] = tuple(parts[i] for i in range(len(parts)))
     return fields
 
 

@@ -39,16 +39,14 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from vehicle_sim.plants.skid_steer import (
-    SkidSteerEffects,
+from vehicle_sim.plants.skid_steer_ground import SkidSteerGround, Surface, TerrainPatch
+from vehicle_sim.plants.skid_steer_manoeuvres import (
     SkidSteerScenario,
-    SkidSteerSensors,
-    SkidSteerVehicle,
     s_shape,
     small_radius_turn,
     straight_acceleration,
 )
-from vehicle_sim.plants.skid_steer_ground import SkidSteerGround, Surface, TerrainPatch
+from vehicle_sim.plants.skid_steer_vehicle import SkidSteerEffects, SkidSteerSensors, SkidSteerVehicle
 
 __all__ = [
     "BANK_ANGLE",
@@ -80,13 +78,8 @@ REPRODUCTION_SCENARIO_NAMES: tuple[str, ...] = (
 )
 """Names of :func:`reproduction_scenarios`, in order."""
 
-MISMATCH_SCENARIOS: tuple[str, ...] = (
-    "nominal",
-    "cornering_stiffness_plus_30",
-    "cornering_stiffness_minus_30",
-    "friction_patch",
-    "bank_5deg",
-    "sharp_turn",
+MISMATCH_SCENARIOS: tuple[str, ...] = tuple(
+    name for name in REPRODUCTION_SCENARIO_NAMES if name not in ("s_shape", "straight_acceleration")
 )
 """The issue's mismatch set: tire law (the nominal turn), ±30 % C_α, μ patch, bank, sharp turn."""
 

@@ -32,15 +32,11 @@ from terrain_estimation.ros.framework import TopicSpec
 from terrain_estimation.ros.soil_stiffness import VEHICLE_SPECS_LRV, VEHICLE_SPECS_QUARTER_CAR
 from terrain_estimation.ros.time import sec_to_stamp
 from terrain_msgs.msg import SoilStiffness
-from vehicle_sim.plants.quarter_car import (
-    LRVVehicle,
-    QuarterCarEffects,
-    QuarterCarSample,
-    QuarterCarSimulator,
-    QuarterCarVehicle,
-    Scenario,
-    SpeedProfile,
-)
+from vehicle_sim.plants.quarter_car import QuarterCarSimulator
+from vehicle_sim.plants.quarter_car_effects import QuarterCarEffects
+from vehicle_sim.plants.quarter_car_scenario import QuarterCarSample, Scenario, SpeedProfile
+from vehicle_sim.plants.quarter_car_vehicles import LRVVehicle, QuarterCarVehicle
+from vehicle_sim.ros.adapter import SimAdapter, floats, frame_id
 from vehicle_sim.terrain.profiles import ISO8608_CLASSES, RoadProfile, flat_profile, iso8608_profile, meadow_c_standin
 from vehicle_sim.terrain.soils import SOILS, SoilPath, soil_by_name
 
@@ -255,12 +251,18 @@ def make_vehicle(kind: str, values: Mapping[str, ParamValue]) -> QuarterCarVehic
             damper_reference=values["vehicle.damper_reference"],
         )
     return QuarterCarVehicle(
-        sprung_mass=float(values["vehicle.sprung_mass"]),
-        unsprung_mass=float(values["vehicle.unsprung_mass"]),
-        suspension_stiffness=float(values["vehicle.suspension_stiffness"]),
-        suspension_damping=float(values["vehicle.suspension_damping"]),
-        tire_stiffness=float(values["vehicle.tire_stiffness"]),
-        wheel_radius=float(values["vehicle.wheel_radius"]),
+        **floats(
+            values,
+            "vehicle",
+            (
+                "sprung_mass",
+                "unsprung_mass",
+                "suspension_stiffness",
+                "suspension_damping",
+                "tire_stiffness",
+                "wheel_radius",
+            ),
+        )
     )
 
 
@@ -301,12 +303,7 @@ def make_scenario(values: Mapping[str, ParamValue]) -> Scenario:
     )
 
 
-def _frame(namespace: str, frame: str) -> str:
-    ns = namespace.strip("/")
-    return f"{ns}/{frame}" if ns else frame
-
-
-class QuarterCarSimAdapter:
+class QuarterCarSimAdapter(SimAdapter):
     """Steps a :class:`QuarterCarSimulator` and builds the contract's messages."""
 
     def __init__(self, kind: str, values: Mapping[str, ParamValue], namespace: str) -> None:
@@ -316,7 +313,7 @@ class QuarterCarSimAdapter:
         self.simulator = QuarterCarSimulator(self.vehicle, self.scenario, int(values["seed"]))
         self.period = self.scenario.sensor_period
         self.frames = {
-            key: _frame(namespace, str(values[f"frames.{key}"]))
+            key: frame_id(namespace, str(values[f"frames.{key}"]))
             for key in ("body_imu", "wheel_imu", "odom", "base_link")
         }
         self.accel_variance = float(values["sensors.accel_noise_variance"])
@@ -368,10 +365,6 @@ class QuarterCarSimAdapter:
         truth.header.frame_id = self.frames["base_link"]
         out.append(("truth", truth))
         return out
-
-    def step(self) -> tuple[float, list[tuple[str, Any]]]:
-        sample = self.simulator.step()
-        return sample.t, self.messages(sample)
 
 
 def specs_for(kind: str) -> tuple[ParamSpec, ...]:

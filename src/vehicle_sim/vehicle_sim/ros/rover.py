@@ -51,23 +51,23 @@ import numpy as np
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from sensor_msgs.msg import Imu, JointState
 
+from terrain_estimation.models.rover import WHEELS
 from terrain_estimation.params import ParamSpec, ParamValue
 from terrain_estimation.ros.framework import TopicSpec
 from terrain_estimation.ros.rover import VEHICLE_SPECS_ROVER, vehicle_params
 from terrain_estimation.ros.time import sec_to_stamp
 from terrain_msgs.msg import WheelTerrain, WheelTerrainArray
-from vehicle_sim.plants.rover import (
+from vehicle_sim.plants.rover import RoverSimulator
+from vehicle_sim.plants.rover_paths import TERRAIN_NUMBERS, TERRAINS
+from vehicle_sim.plants.rover_scenario import (
     CONTROL_RATE,
-    TERRAIN_NUMBERS,
-    TERRAINS,
-    WHEELS,
     RoverController,
     RoverEffects,
     RoverSample,
     RoverScenario,
     RoverSensorNoise,
-    RoverSimulator,
 )
+from vehicle_sim.ros.adapter import SimAdapter, check_kind, field_specs, floats, frame_id
 from vehicle_sim.terrain.wong_reece import TABLE_II_SOIL, WongReeceSoil
 
 __all__ = ["SCENARIO_SPECS", "PARAMETERS", "RoverSimAdapter", "make_adapter", "make_scenario", "specs_for"]
@@ -150,10 +150,7 @@ SCENARIO_SPECS: tuple[ParamSpec, ...] = (
         read_only=True,
     ),
     ParamSpec("seed", 0, "seed of the sensor noise (the truth does not depend on it)", 0, 2**31 - 1, read_only=True),
-    *(
-        ParamSpec(f"controller.{name}", float(getattr(_C, name)), f"[{unit}] {text}", lo, hi, read_only=True)
-        for name, unit, text, lo, hi in _CONTROLLER_FIELDS
-    ),
+    *field_specs("controller", _C, _CONTROLLER_FIELDS),
     ParamSpec(
         "plant.baumgarte_alpha",
         _SCENARIO.baumgarte_alpha,
@@ -208,17 +205,7 @@ SCENARIO_SPECS: tuple[ParamSpec, ...] = (
         1001,
         read_only=True,
     ),
-    *(
-        ParamSpec(
-            f"soil.{name}",
-            float(getattr(TABLE_II_SOIL, name)),
-            f"[{unit}] Table II soil: {text}",
-            lo,
-            hi,
-            read_only=True,
-        )
-        for name, unit, text, lo, hi in _SOIL_FIELDS
-    ),
+    *field_specs("soil", TABLE_II_SOIL, _SOIL_FIELDS, "Table II soil: "),
     ParamSpec(
         "sensors.load_cell_axes",
         2,
@@ -367,14 +354,14 @@ def make_scenario(values: Mapping[str, ParamValue]) -> RoverScenario:
     Raises:
         ValueError: inconsistent values (a bias list of the wrong length, an impossible soil …).
     """
-    soil = WongReeceSoil(**{name: _f(values, f"soil.{name}") for name, *_ in _SOIL_FIELDS})
+    soil = WongReeceSoil(**floats(values, "soil", (name for name, *_ in _SOIL_FIELDS)))
     changed: dict[str, Any] = {}
     if values["effects.soil_change"]:
         changed = {
             "soil_change_distance": _f(values, "effects.soil_change_distance"),
             "soil_change_soil": WongReeceSoil(
                 **{
-                    **{name: _f(values, f"soil.{name}") for name, *_ in _SOIL_FIELDS},
+                    **floats(values, "soil", (name for name, *_ in _SOIL_FIELDS)),
                     "cohesion": _f(values, "effects.soil_change_cohesion"),
                     "friction_angle": _f(values, "effects.soil_change_friction_angle"),
                     "shear_deformation_modulus": _f(values, "effects.soil_change_shear_deformation_modulus"),
@@ -404,9 +391,9 @@ def make_scenario(values: Mapping[str, ParamValue]) -> RoverScenario:
         desired_speed=_f(values, "scenario.desired_speed"),
         params=vehicle_params(values),
         soil=soil,
-        controller=RoverController(**{name: _f(values, f"controller.{name}") for name, *_ in _CONTROLLER_FIELDS}),
+        controller=RoverController(**floats(values, "controller", (name for name, *_ in _CONTROLLER_FIELDS))),
         sensors=RoverSensorNoise(
-            **{name: _f(values, f"sensors.{name}") for name, *_ in _NOISE_FIELDS},
+            **floats(values, "sensors", (name for name, *_ in _NOISE_FIELDS)),
             quantise=bool(values["sensors.quantise"]),
         ),
         effects=effects,
@@ -419,11 +406,6 @@ def make_scenario(values: Mapping[str, ParamValue]) -> RoverScenario:
         wheel_sinkage=bool(values["plant.wheel_sinkage"]),
         sinkage_loading_time=_f(values, "plant.sinkage_loading_time"),
     )
-
-
-def _frame(namespace: str, frame: str) -> str:
-    ns = namespace.strip("/")
-    return f"{ns}/{frame}" if ns else frame
 
 
 def wheel_terrain_truth(sample: RoverSample, frame_id: str) -> WheelTerrainArray:
@@ -448,7 +430,7 @@ def wheel_terrain_truth(sample: RoverSample, frame_id: str) -> WheelTerrainArray
     return msg
 
 
-class RoverSimAdapter:
+class RoverSimAdapter(SimAdapter):
     """Steps a :class:`RoverSimulator` and builds the contract's messages."""
 
     def __init__(self, values: Mapping[str, ParamValue], namespace: str) -> None:
@@ -456,8 +438,8 @@ class RoverSimAdapter:
         self.simulator = RoverSimulator(self.scenario)
         self.period = 1.0 / CONTROL_RATE
         self.two_axis = int(values["sensors.load_cell_axes"]) == 2
-        self.frames = {key: _frame(namespace, str(values[f"frames.{key}"])) for key in ("imu", "base_link")}
-        self.cell_frames = {w: _frame(namespace, str(values[f"frames.{w}_load_cell"])) for w in WHEELS}
+        self.frames = {key: frame_id(namespace, str(values[f"frames.{key}"])) for key in ("imu", "base_link")}
+        self.cell_frames = {w: frame_id(namespace, str(values[f"frames.{w}_load_cell"])) for w in WHEELS}
         # joint_states order: the bogie, then the wheels in WHEELS order (rear, middle, front).
         self.joints = [str(values["joints.bogie"])] + [str(values[f"joints.{w}_wheel"]) for w in WHEELS]
         noise = self.scenario.sensors
@@ -524,15 +506,10 @@ class RoverSimAdapter:
         out.append(("truth_wheel_terrain", wheel_terrain_truth(sample, self.frames["base_link"])))
         return out
 
-    def step(self) -> tuple[float, list[tuple[str, Any]]]:
-        sample = self.simulator.step()
-        return sample.t, self.messages(sample)
-
 
 def specs_for(kind: str = "rover") -> tuple[ParamSpec, ...]:
     """Simulator specs: the estimator's vehicle parameters (one config file serves both) plus the plant's."""
-    if kind != "rover":
-        raise ValueError(f"unknown rover vehicle kind {kind!r}")
+    check_kind(kind, "rover", "rover")
     return VEHICLE_SPECS_ROVER + SCENARIO_SPECS
 
 
@@ -540,6 +517,5 @@ PARAMETERS = specs_for()
 
 
 def make_adapter(values: Mapping[str, ParamValue], namespace: str, kind: str = "rover") -> RoverSimAdapter:
-    if kind != "rover":
-        raise ValueError(f"unknown rover vehicle kind {kind!r}")
+    check_kind(kind, "rover", "rover")
     return RoverSimAdapter(values, namespace)

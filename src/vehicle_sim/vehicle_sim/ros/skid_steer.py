@@ -39,17 +39,12 @@ from terrain_estimation.ros.framework import TopicSpec
 from terrain_estimation.ros.skid_steer import VEHICLE_SPECS_SKID_STEER, vehicle_params
 from terrain_estimation.ros.time import sec_to_stamp
 from terrain_msgs.msg import SkidSteerState
-from vehicle_sim.plants.skid_steer import (
-    MANOEUVRES,
-    SkidSteerEffects,
-    SkidSteerSample,
-    SkidSteerScenario,
-    SkidSteerSensors,
-    SkidSteerSimulator,
-    SkidSteerVehicle,
-)
+from vehicle_sim.plants.skid_steer import SkidSteerSample, SkidSteerSimulator
 from vehicle_sim.plants.skid_steer_ground import SURFACES, SkidSteerGround, Surface, TerrainPatch
+from vehicle_sim.plants.skid_steer_manoeuvres import MANOEUVRES, SkidSteerScenario
+from vehicle_sim.plants.skid_steer_vehicle import SkidSteerEffects, SkidSteerSensors, SkidSteerVehicle
 from vehicle_sim.plants.tire_laws import TIRE_LAWS, MagicFormulaTire
+from vehicle_sim.ros.adapter import SimAdapter, check_kind, field_specs, floats, frame_id
 
 __all__ = ["SCENARIO_SPECS", "PARAMETERS", "SkidSteerSimAdapter", "make_adapter", "make_scenario", "specs_for"]
 
@@ -135,10 +130,7 @@ SCENARIO_SPECS: tuple[ParamSpec, ...] = (
         read_only=True,
     ),
     ParamSpec("scenario.duration", 0.0, "[s] simulated time; 0: the manoeuvre's own", 0.0, 1e5, read_only=True),
-    *(
-        ParamSpec(f"plant.{name}", float(getattr(_V, name)), f"[{unit}] {text}", lo, hi, read_only=True)
-        for name, unit, text, lo, hi in _PLANT_FIELDS
-    ),
+    *field_specs("plant", _V, _PLANT_FIELDS),
     ParamSpec(
         "plant.tire_law",
         _V.tire_law,
@@ -146,17 +138,7 @@ SCENARIO_SPECS: tuple[ParamSpec, ...] = (
         choices=TIRE_LAWS,
         read_only=True,
     ),
-    *(
-        ParamSpec(
-            f"plant.magic_formula.{name}",
-            float(getattr(_MF, name)),
-            f"[{unit}] magic-formula tire: {text}",
-            lo,
-            hi,
-            read_only=True,
-        )
-        for name, unit, text, lo, hi in _MAGIC_FORMULA_FIELDS
-    ),
+    *field_specs("plant.magic_formula", _MF, _MAGIC_FORMULA_FIELDS, "magic-formula tire: "),
     ParamSpec(
         "ground.grade",
         _G.grade,
@@ -323,15 +305,27 @@ def _ground(values: Mapping[str, ParamValue]) -> SkidSteerGround:
     )
 
 
+#: Numeric fields of SkidSteerEffects / SkidSteerSensors set from ``effects.<field>`` / ``sensors.<field>``.
+_EFFECT_FLOATS = (
+    "gyro_bias",
+    "sensor_delay",
+    "wheel_radius_error",
+    "friction_change",
+    "cornering_stiffness_change",
+    "terrain_grade",
+)
+_SENSOR_FLOATS = tuple(
+    name for name in SkidSteerSensors.__dataclass_fields__ if name != "encoder_counts_per_revolution"
+)
+
+
 def make_scenario(values: Mapping[str, ParamValue]) -> SkidSteerScenario:
     """The plant's scenario from validated parameter values."""
     vehicle = SkidSteerVehicle(
         nominal=vehicle_params(values),
         tire_law=str(values["plant.tire_law"]),
-        magic_formula=MagicFormulaTire(
-            **{name: float(values[f"plant.magic_formula.{name}"]) for name, *_ in _MAGIC_FORMULA_FIELDS}
-        ),
-        **{name: float(values[f"plant.{name}"]) for name, *_ in _PLANT_FIELDS},
+        magic_formula=MagicFormulaTire(**floats(values, "plant.magic_formula", (n for n, *_ in _MAGIC_FORMULA_FIELDS))),
+        **floats(values, "plant", (name for name, *_ in _PLANT_FIELDS)),
     )
     bias = [float(b) for b in values["effects.accel_bias"]]
     if len(bias) != 3:
@@ -339,24 +333,12 @@ def make_scenario(values: Mapping[str, ParamValue]) -> SkidSteerScenario:
     effects = SkidSteerEffects(
         load_transfer_dynamics=bool(values["effects.load_transfer_dynamics"]),
         tire_relaxation=bool(values["effects.tire_relaxation"]),
-        gyro_bias=float(values["effects.gyro_bias"]),
         accel_bias=(bias[0], bias[1], bias[2]),
-        sensor_delay=float(values["effects.sensor_delay"]),
-        wheel_radius_error=float(values["effects.wheel_radius_error"]),
-        friction_change=float(values["effects.friction_change"]),
-        cornering_stiffness_change=float(values["effects.cornering_stiffness_change"]),
-        terrain_grade=float(values["effects.terrain_grade"]),
+        **floats(values, "effects", _EFFECT_FLOATS),
     )
     sensors = SkidSteerSensors(
-        accel_noise_std=float(values["sensors.accel_noise_std"]),
-        gyro_noise_std=float(values["sensors.gyro_noise_std"]),
         encoder_counts_per_revolution=int(values["sensors.encoder_counts_per_revolution"]),
-        motor_velocity_noise_std=float(values["sensors.motor_velocity_noise_std"]),
-        motor_effort_noise_std=float(values["sensors.motor_effort_noise_std"]),
-        gnss_rate=float(values["sensors.gnss_rate"]),
-        gnss_velocity_noise_std=float(values["sensors.gnss_velocity_noise_std"]),
-        gnss_position_noise_std=float(values["sensors.gnss_position_noise_std"]),
-        gnss_yaw_noise_std=float(values["sensors.gnss_yaw_noise_std"]),
+        **floats(values, "sensors", _SENSOR_FLOATS),
     )
     base = MANOEUVRES[str(values["scenario.manoeuvre"])](vehicle=vehicle, effects=effects, sensors=sensors)
     duration = float(values["scenario.duration"])
@@ -366,11 +348,6 @@ def make_scenario(values: Mapping[str, ParamValue]) -> SkidSteerScenario:
         sensor_rate=float(values["sensors.rate"]),
         ground=_ground(values),
     )
-
-
-def _frame(namespace: str, frame: str) -> str:
-    ns = namespace.strip("/")
-    return f"{ns}/{frame}" if ns else frame
 
 
 def _odometry(
@@ -390,14 +367,14 @@ def _odometry(
     return msg
 
 
-class SkidSteerSimAdapter:
+class SkidSteerSimAdapter(SimAdapter):
     """Steps a :class:`SkidSteerSimulator` and builds the contract's messages."""
 
     def __init__(self, values: Mapping[str, ParamValue], namespace: str) -> None:
         self.scenario = make_scenario(values)
         self.simulator = SkidSteerSimulator(self.scenario, int(values["seed"]))
         self.period = self.scenario.sensor_period
-        self.frames = {key: _frame(namespace, str(values[f"frames.{key}"])) for key in ("imu", "odom", "base_link")}
+        self.frames = {key: frame_id(namespace, str(values[f"frames.{key}"])) for key in ("imu", "odom", "base_link")}
         self.joints = [str(values["joints.left_motor"]), str(values["joints.right_motor"])]
         s = self.scenario.sensors
         self.accel_variance = s.accel_noise_std**2
@@ -481,15 +458,10 @@ class SkidSteerSimAdapter:
         )
         return out
 
-    def step(self) -> tuple[float, list[tuple[str, Any]]]:
-        sample = self.simulator.step()
-        return sample.t, self.messages(sample)
-
 
 def specs_for(kind: str = "skid_steer") -> tuple[ParamSpec, ...]:
     """Simulator specs: the estimator's vehicle parameters (one config file serves both) plus the plant's."""
-    if kind != "skid_steer":
-        raise ValueError(f"unknown skid-steer vehicle kind {kind!r}")
+    check_kind(kind, "skid_steer", "skid-steer")
     return VEHICLE_SPECS_SKID_STEER + SCENARIO_SPECS
 
 
@@ -497,6 +469,5 @@ PARAMETERS = specs_for()
 
 
 def make_adapter(values: Mapping[str, ParamValue], namespace: str, kind: str = "skid_steer") -> SkidSteerSimAdapter:
-    if kind != "skid_steer":
-        raise ValueError(f"unknown skid-steer vehicle kind {kind!r}")
+    check_kind(kind, "skid_steer", "skid-steer")
     return SkidSteerSimAdapter(values, namespace)
