@@ -42,12 +42,7 @@ TOP_LEVEL = ("terrain_estimation", "terrain_analysis", "vehicle_sim")
 #: Back edges present when the check was written (issue 24 removes them).
 KNOWN_BACK_EDGES: frozenset[tuple[str, str]] = frozenset()
 #: Module cycles present when the check was written (each as a sorted tuple).
-KNOWN_MODULE_CYCLES: frozenset[tuple[str, ...]] = frozenset(
-    {
-        ("terrain_analysis.sim2real.husky", "terrain_analysis.sim2real.skid_steer"),
-        ("terrain_analysis.tools.reproduce_qc", "terrain_analysis.tools.reproduce_qc_change"),
-    }
-)
+KNOWN_MODULE_CYCLES: frozenset[tuple[str, ...]] = frozenset()
 #: Package cycles present when the check was written (each as a sorted tuple).
 KNOWN_PACKAGE_CYCLES: frozenset[tuple[str, ...]] = frozenset()
 

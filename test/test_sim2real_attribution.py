@@ -15,14 +15,9 @@ from collections.abc import Mapping
 import numpy as np
 import pytest
 
-from terrain_analysis.sim2real.attribution import (
-    AttributionSettings,
-    FittedModel,
-    _indistinguishable,
-    _p_better,
-    attribute,
-)
+from terrain_analysis.sim2real.attribution import AttributionSettings, FittedModel, attribute
 from terrain_analysis.sim2real.model import Candidate, Channel, FitParameter, ReplayModel
+from terrain_analysis.sim2real.significance import _indistinguishable, _p_better
 
 SIGMA = 0.1
 F = 1.7

@@ -212,7 +212,7 @@ def test_wheel_inversion_on_a_flat_torque_curve(nominal: tuple[Any, RoverReplay]
     overshot to the bounds there and the replay with the plant's own soil change left a gap 5000 times the
     nominal one.
     """
-    from terrain_analysis.sim2real.rover import _SoilVariant, _solve_wheels
+    from terrain_analysis.sim2real.rover_soil import _SoilVariant, _solve_wheels
 
     _, model = nominal
     changed = {

@@ -151,7 +151,7 @@ def test_epoch_stamps_keep_their_spacing(tmp_path: Path) -> None:
     from sensor_msgs.msg import Imu, JointState
 
     from terrain_analysis.sim2real.model import StampOrigin
-    from terrain_analysis.sim2real.where import _read
+    from terrain_analysis.sim2real.open_loop import _read
     from terrain_estimation.ros.time import ns_to_stamp
 
     start = 1_732_760_302_708_794_534

@@ -32,7 +32,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
 
 from terrain_analysis.sim2real.attribution import AttributionReport, AttributionSettings, attribute
 from terrain_analysis.sim2real.inputs import GAP_MIN_S, InputReport, screen_bag
@@ -47,6 +46,7 @@ from terrain_analysis.sim2real.where import (
     _channel,
     _jsonable,
     _nis_report,
+    _regimes,
     despike,
 )
 
@@ -129,27 +129,6 @@ class Diagnosis:
         )
 
 
-def _regime_stats(
-    label_sel: list[tuple[str, float, float, NDArray[np.bool_]]],
-    residuals: Mapping[str, FloatArray],
-    sigma: Mapping[str, float],
-    where: WhereSettings,
-    n_tests: int,
-) -> list[RegimeStat]:
-    out = []
-    for label, lo, hi, sel in label_sel:
-        n = int(np.sum(sel))
-        if n < 10:
-            continue
-        rms = {ch: float(np.sqrt(np.mean(r[sel] ** 2))) for ch, r in residuals.items()}
-        chi = float(stats.chi2.ppf(1.0 - where.alpha / max(1, n_tests), n) / n)
-        threshold = max(chi, where.power_floor)
-        out.append(
-            RegimeStat(label, lo, hi, n, rms, [ch for ch, v in rms.items() if v**2 / sigma[ch] ** 2 > threshold])
-        )
-    return out
-
-
 def where_table(model: ReplayModel, prediction: Mapping[str, FloatArray], where: WhereSettings) -> WhereTable:
     """Where ``prediction`` (the fitted nominal model) and the bag disagree."""
     t0 = min(float(model.times[c.name][0]) for c in model.channels)
@@ -184,7 +163,8 @@ def where_table(model: ReplayModel, prediction: Mapping[str, FloatArray], where:
     for i in range(n_win):
         lo, hi = start + i * where.window, start + (i + 1) * where.window
         win.append((f"{lo - t0:.1f}–{hi - t0:.1f} s", lo - t0, hi - t0, (t_ref >= lo) & (t_ref < hi)))
-    windows = _regime_stats(win, residuals, sigma, where, len(residuals) * max(1, n_win))
+    noise_vars = {name: s**2 for name, s in sigma.items()}
+    windows = _regimes(win, residuals, noise_vars, where, len(residuals) * max(1, n_win))
     regimes: dict[str, list[RegimeStat]] = {}
     for name, (t_var, values) in model.regimes.items():
         v = np.interp(t_ref, np.asarray(t_var, dtype=float), np.asarray(values, dtype=float))
@@ -201,7 +181,7 @@ def where_table(model: ReplayModel, prediction: Mapping[str, FloatArray], where:
             lo_v = float(np.min(v[sel])) if np.any(sel) else float(a)
             hi_v = float(np.max(v[sel])) if np.any(sel) else float(b)
             labels.append((f"{lo_v:.3g}…{hi_v:.3g}", lo_v, hi_v, sel))
-        regimes[name] = _regime_stats(labels, residuals, sigma, where, len(residuals) * len(labels))
+        regimes[name] = _regimes(labels, residuals, noise_vars, where, len(residuals) * len(labels))
     gaps = [g for ch in channels for g in ch.gaps]
     bad = [w for w in windows if w.gap]
     if bad and len(bad) < len(windows):

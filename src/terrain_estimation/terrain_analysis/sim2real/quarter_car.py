@@ -77,7 +77,8 @@ from numpy.typing import NDArray
 from scipy import signal, stats
 
 from terrain_analysis.sim2real.model import Candidate, Channel, FitParameter, candidates_from_catalogue
-from terrain_analysis.sim2real.where import Sim2RealError, _odd, _read, _savgol
+from terrain_analysis.sim2real.open_loop import _odd, _read, _savgol
+from terrain_analysis.sim2real.where import Sim2RealError
 from terrain_estimation.jit import compiled
 from terrain_estimation.tools.estimate import topic_name
 from terrain_estimation.vehicles import estimator_parameters, get_vehicle

@@ -1,5 +1,10 @@
 """Replay model of a rocker-bogie (Kapvik) bag for the sim-to-real attribution (issue 6).
 
+This module holds the replay (:class:`RoverReplay`) and its building from a bag; its parts: the sensor
+streams (:mod:`~terrain_analysis.sim2real.rover_bag`), the soil model and the per-wheel inversion
+(:mod:`~terrain_analysis.sim2real.rover_soil`), the smoothing (:mod:`~terrain_analysis.sim2real.rover_signal`)
+and the soil-change location search (:mod:`~terrain_analysis.sim2real.rover_location`).
+
 The full multibody plant (:mod:`vehicle_sim.plants.rover`) runs about 2.5×
 real time; the attribution engine calls :meth:`RoverReplay.predict` a few
 hundred times per bag. This replay is therefore *quasi-static and driven by
@@ -174,27 +179,20 @@ Units: SI (m, s, kg, rad, N, N·m).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import signal
 
-from terrain_analysis.sim2real.model import (
-    Candidate,
-    Channel,
-    FitParameter,
-    ReplayModel,
-    StampOrigin,
-    candidates_from_catalogue,
-)
+from terrain_analysis.sim2real.model import Channel, FitParameter, candidates_from_catalogue
+from terrain_analysis.sim2real.rover_bag import WHEELS, RoverSeries, read_rover_bag, series_from_run
+from terrain_analysis.sim2real.rover_location import ChangeLocation
+from terrain_analysis.sim2real.rover_signal import _rotate, _savgol, _white_bound
+from terrain_analysis.sim2real.rover_soil import _SoilModel, _SoilVariant, _solve_wheels
 from terrain_analysis.sim2real.where import Sim2RealError
-from terrain_estimation.bag import bag_topics
 from terrain_estimation.models.rover import RoverParams
 
 __all__ = [
@@ -210,14 +208,7 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 Progress = Callable[[str], None] | None
 
-_WHEELS = ("rear", "middle", "front")
-_LOCAL_ORDER = 4
-_FIT_GRID_POINTS = 30  # per axis, of the surrogate fit of a changed soil or grouser wheel
 _BLEND_WIDTH = 2.0e-3  # m, soil-change blend
-_LOCATION_SCALE = 0.02  # m, scale of the soil-change distance started at the change-location scan
-_LOCATION_WINDOW = 0.15  # m, either side of the linearised scan's location, of the replay's scan of it
-_LOCATION_NFEV = 20  # evaluations of each fit of the soil scales in the location refinement
-_LOCATION_ROUNDS = 3  # at most, of the location refinement (fit the scales, scan the location)
 #: Effects that change the inputs or the soil model of the per-wheel inversion (the others reuse the nominal one).
 _SOIL_INPUT_EFFECTS = frozenset(
     {"load_cell_bias", "load_cell_crosstalk", "sensor_delay", "slip_sinkage", "grousers", "soil_change"}
@@ -240,534 +231,7 @@ MODEL_FLOORS: Mapping[str, float] = {
 }
 
 
-# ---------------------------------------------------------------------------
-# Data
-# ---------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class RoverSeries:
-    """The contract's rover sensor streams on one time grid (N samples).
-
-    Attributes:
-        t: sample times (s from the first sample), increasing.
-        accel: body specific force (x, z) (m/s²), (N, 2).
-        gyro: pitch rate (rad/s), (N,).
-        bogie: bogie angle q1 (rad), (N,).
-        wheel_angle: q2..q4 (rear, middle, front) (rad), (N, 3).
-        effort: applied wheel torques (N·m), (N, 3).
-        speed: velocimeter forward speed (m/s), (N,).
-        load_axial: F_L per wheel (N), (N, 3).
-        load_perpendicular: F_⊥ per wheel (N), (N, 3).
-    """
-
-    t: FloatArray
-    accel: FloatArray
-    gyro: FloatArray
-    bogie: FloatArray
-    wheel_angle: FloatArray
-    effort: FloatArray
-    speed: FloatArray
-    load_axial: FloatArray
-    load_perpendicular: FloatArray
-
-
-def series_from_run(run: Any) -> RoverSeries:
-    """The sensor streams of a :class:`vehicle_sim.plants.rover.RoverRun` (tests; no bag needed)."""
-    s = run.sensors
-    return RoverSeries(
-        t=np.asarray(run.time, dtype=float) - float(run.time[0]),
-        accel=np.asarray(s.acceleration, dtype=float),
-        gyro=np.asarray(s.pitch_rate, dtype=float),
-        bogie=np.asarray(s.bogie_angle, dtype=float),
-        wheel_angle=np.asarray(s.wheel_angle, dtype=float),
-        effort=np.asarray(s.effort, dtype=float),
-        speed=np.asarray(s.forward_velocity, dtype=float),
-        load_axial=np.asarray(s.load_axial, dtype=float),
-        load_perpendicular=np.asarray(s.load_perpendicular, dtype=float),
-    )
-
-
-def read_rover_bag(
-    bag: str | Path,
-    *,
-    namespace: str = "/rover",
-    joints: Mapping[str, str] | None = None,
-) -> RoverSeries:
-    """Read the contract's rover topics of ``bag`` onto the joint_states time grid.
-
-    Other streams are linearly interpolated to the joint_states stamps (on a
-    simulator bag all stamps coincide). ``ground_truth/*`` is never read.
-
-    Raises:
-        Sim2RealError: a topic is missing or too short, a joint is missing, a
-            value is not finite (the message names topic, field and value).
-    """
-    from terrain_estimation.bag import read_bag
-    from terrain_estimation.tools.estimate import topic_name
-
-    names = dict(joints or {"bogie": "bogie", "rear": "rear_wheel", "middle": "middle_wheel", "front": "front_wheel"})
-    topics = {
-        "imu": topic_name(namespace, "imu"),
-        "joint_states": topic_name(namespace, "joint_states"),
-        "velocimeter": topic_name(namespace, "velocimeter"),
-        **{f"load_{w}": topic_name(namespace, f"wheel/{w}/load") for w in _WHEELS},
-    }
-    by_topic = {v: k for k, v in topics.items()}
-    present = bag_topics(bag)
-    missing = [t for t in topics.values() if t not in present]
-    if missing:
-        raise Sim2RealError(
-            f"bag {str(bag)!r} has no messages on {', '.join(missing)}, which the rover replay needs "
-            f"(namespace {namespace!r}; pass --namespace if the bag was recorded under another one; "
-            f"the bag has {', '.join(sorted(present)) or 'no topics'})"
-        )
-    rows: dict[str, list[tuple[float, ...]]] = {k: [] for k in topics}
-    order = [names["bogie"], names["rear"], names["middle"], names["front"]]
-    clock = StampOrigin()  # seconds from the first stamp (epoch stamps lose precision as floats)
-    for item in read_bag(bag, list(by_topic)):
-        key = by_topic[item.topic]
-        msg = item.msg
-        t = clock(msg)
-        if key == "imu":
-            a, w = msg.linear_acceleration, msg.angular_velocity
-            rows[key].append((t, float(a.x), float(a.z), float(w.y)))
-        elif key == "joint_states":
-            joint_names = list(msg.name)
-            missing_joints = [n for n in order if n not in joint_names]
-            if missing_joints:
-                raise Sim2RealError(
-                    f"{item.topic}: joint(s) {missing_joints} missing (message has {joint_names}); "
-                    "set joints.* in the config"
-                )
-            idx = [joint_names.index(n) for n in order]
-            if len(msg.position) < len(joint_names):
-                raise Sim2RealError(
-                    f"{item.topic}: position has {len(msg.position)} values for {len(joint_names)} joints"
-                )
-            effort = list(msg.effort) if len(msg.effort) >= len(joint_names) else None
-            if effort is None:
-                raise Sim2RealError(
-                    f"{item.topic}: field effort has {len(msg.effort)} values for {len(joint_names)} joints; "
-                    "the rover replay needs the applied wheel torques"
-                )
-            rows[key].append((t, *(float(msg.position[i]) for i in idx), *(float(effort[i]) for i in idx[1:])))
-        elif key == "velocimeter":
-            rows[key].append((t, float(msg.twist.linear.x)))
-        else:
-            f = msg.wrench.force
-            rows[key].append((t, float(f.z), float(f.x)))
-    fields = {
-        "imu": ("linear_acceleration.x", "linear_acceleration.z", "angular_velocity.y"),
-        "joint_states": (
-            "position[bogie]",
-            "position[rear]",
-            "position[middle]",
-            "position[front]",
-            "effort[rear]",
-            "effort[middle]",
-            "effort[front]",
-        ),
-        "velocimeter": ("twist.linear.x",),
-        **{f"load_{w}": ("wrench.force.z", "wrench.force.x") for w in _WHEELS},
-    }
-    arrays: dict[str, FloatArray] = {}
-    for key, topic in topics.items():
-        if len(rows[key]) < 10:
-            raise Sim2RealError(
-                f"bag {str(bag)!r} has {len(rows[key])} messages on {topic}; the rover replay needs it "
-                f"(namespace {namespace!r}; pass --namespace if the bag was recorded under another one)"
-            )
-        a = np.array(rows[key], dtype=float)
-        a = a[np.argsort(a[:, 0], kind="stable")]
-        bad = ~np.isfinite(a)
-        if np.any(bad):
-            r, c = np.argwhere(bad)[0]
-            what = "header.stamp" if c == 0 else fields[key][c - 1]
-            raise Sim2RealError(f"{topic}: field {what} is {float(a[r, c])} at message {r} (stamp {a[r, 0]:.9f} s)")
-        keep = np.concatenate([[True], np.diff(a[:, 0]) > 0.0])
-        arrays[key] = a[keep]
-    grid = arrays["joint_states"][:, 0]
-    t0 = float(grid[0])
-
-    def on_grid(key: str, column: int) -> FloatArray:
-        a = arrays[key]
-        return np.interp(grid, a[:, 0], a[:, column])
-
-    js = arrays["joint_states"]
-    return RoverSeries(
-        t=grid - t0,
-        accel=np.column_stack([on_grid("imu", 1), on_grid("imu", 2)]),
-        gyro=on_grid("imu", 3),
-        bogie=js[:, 1].copy(),
-        wheel_angle=js[:, 2:5].copy(),
-        effort=js[:, 5:8].copy(),
-        speed=on_grid("velocimeter", 1),
-        load_axial=np.column_stack([on_grid(f"load_{w}", 1) for w in _WHEELS]),
-        load_perpendicular=np.column_stack([on_grid(f"load_{w}", 2) for w in _WHEELS]),
-    )
-
-
-# ---------------------------------------------------------------------------
-# Soil
-# ---------------------------------------------------------------------------
-
-
-class _Polynomial:
-    """Σ c[k, m] |i|^k W^m (k + m ≤ 4) in slip magnitude |i| (–) and load W (N), evaluated by Horner's scheme."""
-
-    def __init__(self, table: FloatArray) -> None:
-        self.table = np.asarray(table, dtype=float)
-        self.order = self.table.shape[0] - 1
-
-    @classmethod
-    def from_model(cls, model: Any) -> _Polynomial:
-        """From a :class:`~terrain_estimation.models.terrain_response.PolynomialModel2D` (the plant's surrogate)."""
-        table = np.zeros((model.order + 1, model.order + 1))
-        for (k, m), c in zip(model.exponents, model.coefficients, strict=True):
-            table[k, m] = c
-        return cls(table)
-
-    def __add__(self, other: _Polynomial) -> _Polynomial:
-        return _Polynomial(self.table + other.table)
-
-    def __call__(self, slip: FloatArray | float, load: FloatArray) -> FloatArray:
-        result = np.zeros(np.shape(load))
-        for k in range(self.order, -1, -1):
-            q = np.zeros(np.shape(load))
-            for m in range(self.order - k, -1, -1):
-                q = q * load + self.table[k, m]
-            result = result * slip + q
-        return result
-
-
-def _powers(x: FloatArray, order: int) -> FloatArray:
-    """(n, order + 1) matrix of x⁰ … x^order."""
-    out = np.empty((x.size, order + 1))
-    out[:, 0] = 1.0
-    for k in range(1, order + 1):
-        out[:, k] = out[:, k - 1] * x
-    return out
-
-
-class _SurrogateFit:
-    """The plant's surrogate fit (4th order, equal weights, basis |i|^k W^m over 0 ≤ i ≤ 1, 0.1 ≤ W ≤ 200 N) on a
-    coarser grid (30 × 30 instead of 100 × 100), so that a changed soil costs one 900-point Wong–Reece solve."""
-
-    def __init__(self, order: int = _LOCAL_ORDER, points: int = _FIT_GRID_POINTS) -> None:
-        from vehicle_sim.terrain.terramechanics_surrogate import SURROGATE_LOAD_RANGE, SURROGATE_SLIP_RANGE
-
-        self.order = order
-        self.exponents = [(k, m) for k in range(order + 1) for m in range(order + 1 - k)]
-        load = np.linspace(*SURROGATE_LOAD_RANGE, points)
-        slip = np.linspace(*SURROGATE_SLIP_RANGE, points)
-        lm, sm = np.meshgrid(load, slip, indexing="ij")
-        self.grid_load, self.grid_slip = lm.ravel(), sm.ravel()
-        self._load_scale = float(SURROGATE_LOAD_RANGE[1])
-        features = np.stack(
-            [self.grid_slip**k * (self.grid_load / self._load_scale) ** m for k, m in self.exponents], axis=1
-        )
-        self._pinv = np.linalg.pinv(features)
-
-    def fit(self, values: FloatArray) -> _Polynomial:
-        c = self._pinv @ values
-        table = np.zeros((self.order + 1, self.order + 1))
-        for (k, m), value in zip(self.exponents, c, strict=True):
-            table[k, m] = value / self._load_scale**m
-        return _Polynomial(table)
-
-
-@dataclass(frozen=True)
-class _SoilVariant:
-    """A soil and grouser height whose forces differ from the nominal surrogate."""
-
-    soil: Any
-    grouser_height: float
-
-
-class _SoilModel:
-    """DP(W, i), τ_R(W, i) as the plant evaluates them (``_Terramechanics``), with the catalogue's soil effects.
-
-    Nominal: the plant's surrogate of the config soil (the same polynomials).
-    A variant (changed soil and/or grousers) is the surrogate plus the fit,
-    by the plant's own procedure on a 30 × 30 grid, of the Wong–Reece
-    difference WR(variant) − WR(nominal): the plant fits a new surrogate to
-    WR(variant) on 100 × 100 points, and the fit of a sum is the sum of the
-    fits, so only the grid differs (and the surrogate's fit error, 0.1–0.3 N
-    of DP near the operating point, is reproduced rather than ignored).
-    """
-
-    def __init__(self, soil: Any, params: RoverParams) -> None:
-        from vehicle_sim.terrain.terramechanics_surrogate import SURROGATE_LOAD_RANGE, terramechanics_surrogate
-        from vehicle_sim.terrain.wong_reece import RigidWheel
-
-        self.soil = soil
-        self.params = params
-        self.wheel = RigidWheel(radius=params.wheel_radius, width=params.wheel_width)
-        surrogate = terramechanics_surrogate(soil, self.wheel)
-        self.nominal = (
-            _Polynomial.from_model(surrogate.drawbar_pull),
-            _Polynomial.from_model(surrogate.resistive_torque),
-        )
-        self.load_cap = SURROGATE_LOAD_RANGE[1]
-        self.local = _SurrogateFit()
-        self._base = self._wong_reece(soil, self.wheel)
-        self._cache: dict[tuple[Any, float], tuple[_Polynomial, _Polynomial]] = {}
-
-    def _wong_reece(self, soil: Any, wheel: Any) -> tuple[FloatArray, FloatArray]:
-        from vehicle_sim.terrain.wong_reece import wheel_forces
-
-        forces = wheel_forces(self.local.grid_load, self.local.grid_slip, soil, wheel, overload="saturate")
-        return np.asarray(forces.drawbar_pull, dtype=float), np.asarray(forces.resistive_torque, dtype=float)
-
-    def polynomials(self, variant: _SoilVariant | None) -> tuple[_Polynomial, _Polynomial]:
-        """(DP, τ_R) polynomials in (|i|, W) of the nominal soil (None) or a variant."""
-        from vehicle_sim.terrain.wong_reece import RigidWheel
-
-        if variant is None or (variant.soil == self.soil and variant.grouser_height == 0.0):
-            return self.nominal
-        key = (variant.soil, round(variant.grouser_height, 12))
-        if key not in self._cache:
-            if len(self._cache) > 64:
-                self._cache.clear()
-            wheel = RigidWheel(radius=self.params.wheel_radius + variant.grouser_height, width=self.params.wheel_width)
-            dp, tau = self._wong_reece(variant.soil, wheel)
-            self._cache[key] = (
-                self.nominal[0] + self.local.fit(dp - self._base[0]),
-                self.nominal[1] + self.local.fit(tau - self._base[1]),
-            )
-        return self._cache[key]
-
-    def forces(
-        self,
-        load: FloatArray,
-        slip: FloatArray,
-        *,
-        sinkage: float = 0.0,
-        grouser_height: float = 0.0,
-        variants: Sequence[tuple[_SoilVariant | None, FloatArray | float]] = ((None, 1.0),),
-    ) -> tuple[FloatArray, FloatArray]:
-        """(DP, τ_R) at (W, i) in the plant's ``_Terramechanics`` order of effects.
-
-        ``variants``: (variant or None for the nominal soil, weight per sample)
-        blended (the soil before and after a change).
-        """
-        load = np.maximum(load, 0.0)
-        slip = np.clip(slip, -1.0, 1.0)
-        model_load, model_slip = load, slip
-        scale = None
-        if sinkage > 0.0:
-            scale = 1.0 + sinkage * np.abs(slip)
-            model_load = load * scale
-        if grouser_height > 0.0:
-            r = self.params.wheel_radius
-            model_slip = 1.0 - (1.0 - slip) * r / (r + grouser_height)
-        capped = np.minimum(model_load, self.load_cap)
-        skid = model_slip < 0.0
-        any_skid = bool(np.any(skid))
-        load_powers = _powers(capped, _LOCAL_ORDER)
-        slip_powers = _powers(np.abs(model_slip), _LOCAL_ORDER)
-        dp = np.zeros_like(capped)
-        tau = np.zeros_like(capped)
-        for variant, weight in variants:
-            p_dp, p_tau = self.polynomials(variant)
-            both = slip_powers @ np.hstack([p_dp.table, p_tau.table])  # Σ_k |i|^k c_km, for DP and τ_R
-            v_dp = np.einsum("nm,nm->n", both[:, : _LOCAL_ORDER + 1], load_powers)
-            v_tau = np.einsum("nm,nm->n", both[:, _LOCAL_ORDER + 1 :], load_powers)
-            if any_skid:  # [RB] eqs. 10-11 on the polynomials, as the plant's surrogate
-                v_dp = np.where(skid, -v_dp + 2.0 * (load_powers @ p_dp.table[0]), v_dp)
-                v_tau = np.where(skid, -v_tau + 2.0 * (load_powers @ p_tau.table[0]), v_tau)
-            dp = dp + weight * v_dp
-            tau = tau + weight * v_tau
-        if scale is not None:
-            dp = dp / scale
-            tau = tau / scale
-        return dp, tau
-
-
-# ---------------------------------------------------------------------------
-# Replay
-# ---------------------------------------------------------------------------
-
-
-@functools.lru_cache(maxsize=32)
-def _savgol_operator(window: int, deriv: int, dt: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Quadratic Savitzky–Golay filter as (interior kernel, first-window map, last-window map).
-
-    The edges are the quadratic fitted to the first / last ``window`` samples
-    (scipy's ``mode="interp"``), as fixed linear maps so that every call is a
-    convolution and two small products.
-    """
-    half = window // 2
-    kernel = np.asarray(signal.savgol_coeffs(window, 2, deriv=deriv, delta=dt, use="conv"), dtype=float)
-    x = np.arange(window, dtype=float)
-    fit = np.linalg.pinv(np.vander(x, 3, increasing=True))  # (3, window): coefficients of 1, x, x²
-    pos = np.arange(window, dtype=float)
-    if deriv == 0:
-        basis = np.vander(pos, 3, increasing=True)
-    elif deriv == 1:
-        basis = np.column_stack([np.zeros(window), np.ones(window), 2.0 * pos]) / dt
-    else:
-        basis = np.column_stack([np.zeros(window), np.zeros(window), 2.0 * np.ones(window)]) / dt**2
-    full = basis @ fit  # (window, window): value at each position of the window
-    return kernel, full[:half], full[window - half :]
-
-
-def _savgol(x: FloatArray, window: int, deriv: int, dt: float) -> FloatArray:
-    """Quadratic Savitzky–Golay smoothing / derivative along axis 0 (edges as scipy's ``mode="interp"``)."""
-    window = max(5, window | 1)
-    n = x.shape[0]
-    if n <= window:
-        window = (n - 1) | 1 if n % 2 == 0 else n - 2
-        if window < 5:
-            return np.gradient(x, dt, axis=0) if deriv else x.copy()
-    kernel, first, last = _savgol_operator(window, deriv, round(dt, 12))
-    half = window // 2
-    if x.ndim == 1:
-        out = np.empty(n)
-        out[half : n - half] = np.convolve(x, kernel, mode="valid")
-    else:
-        out = np.empty(x.shape)
-        for j in range(x.shape[1]):
-            out[half : n - half, j] = np.convolve(x[:, j], kernel, mode="valid")
-    out[:half] = first @ x[:window]
-    out[n - half :] = last @ x[n - window :]
-    return out
-
-
-def _white_bound(samples: Sequence[FloatArray], rate: float) -> float:
-    """σ of the white noise whose PSD bounds that of ``samples`` in every octave band above 0.5 Hz (and its variance).
-
-    Welch PSD (Hann, 50 % overlap, ≈ 4 s segments as the noise tests use),
-    mean over each octave band from 0.5 Hz to Nyquist; a white noise of
-    variance σ² has the one-sided PSD 2σ²/rate.
-    """
-    variance = float(np.mean([np.var(x) for x in samples]))
-    n = min(x.size for x in samples)
-    nperseg = int(min(2 ** int(round(math.log2(max(rate * 4.0, 16.0)))), 2 ** int(math.log2(max(n // 8, 16)))))
-    if n < 2 * nperseg:
-        return math.sqrt(variance)
-    spectra = [signal.welch(x, fs=rate, nperseg=nperseg, detrend="constant") for x in samples]
-    f = spectra[0][0]
-    psd = np.mean([p for _, p in spectra], axis=0)  # averaged over the realisations
-    bound = variance
-    low = 0.5
-    while low < rate / 2.0:
-        band = (f >= low) & (f < 2.0 * low)
-        if np.any(band):
-            bound = max(bound, float(np.mean(psd[band])) * rate / 2.0)
-        low *= 2.0
-    return math.sqrt(bound)
-
-
-def _rotate(angle: FloatArray | float, bx: FloatArray, bz: FloatArray) -> tuple[FloatArray, FloatArray]:
-    c, s = np.cos(angle), np.sin(angle)
-    return bx * c + bz * s, -bx * s + bz * c
-
-
-_SLIP_BOUNDS = (-0.95, 0.999)  # slip range of the per-wheel inversion
-_TORQUE_TOL = 1e-6  # N·m, convergence of τ_R(W, i) = τ_R,measured
-_LOAD_TOL = 1e-4  # N, convergence of W = √(F_L² + F_⊥² − DP²)
-
-
-def _solve_wheels(
-    forces: Callable[[NDArray[np.intp] | None, FloatArray, FloatArray], tuple[FloatArray, FloatArray]],
-    tau: FloatArray,
-    force2: FloatArray,
-    slip: FloatArray,
-    load: FloatArray,
-    sweeps: Sequence[tuple[int, int]],
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """(W, i, DP) per sample: τ_R(W, i) = ``tau`` and W² + DP(W, i)² = ``force2`` (module docstring, 3).
-
-    ``forces(rows, W, i)`` is (DP, τ_R) at the samples ``rows`` (None: all).
-    Each sweep is a safeguarded Newton on i at fixed W followed by the update
-    of W. The Newton keeps, per sample, a slip where τ_R is below the
-    measurement and one where it is above (at first the slip bounds) and
-    bisects whenever the step leaves that bracket or the slope is not
-    positive: a changed soil's τ_R(i) is nearly flat beyond i ≈ 0.3 (loose
-    soil with a high friction angle: 1.79 N·m at i = 0.3, 1.84 N·m at 0.8), where
-    a plain Newton step overshoots to the slip bounds and oscillates between
-    them. After the ``sweeps`` (Newton iterations, ignored), samples whose
-    torque or load has not converged get more iterations and sweeps.
-    """
-    lo, hi = _SLIP_BOUNDS
-    step = 1e-4
-
-    def newton(
-        sel: NDArray[np.intp] | None,
-        i: FloatArray,
-        w: FloatArray,
-        target: FloatArray,
-        iterations: int,
-        below: FloatArray,
-        above: FloatArray,
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        for _ in range(iterations):
-            t0 = forces(sel, w, i)[1]
-            t1 = forces(sel, w, np.minimum(i + step, 1.0))[1]
-            f = t0 - target
-            below = np.where(f < 0.0, i, below)
-            above = np.where(f > 0.0, i, above)
-            slope = (t1 - t0) / step
-            good = slope > 1e-3
-            trial = np.clip(i - f / np.where(good, slope, 1.0), lo, hi)
-            inside = good & (trial >= np.minimum(below, above)) & (trial <= np.maximum(below, above))
-            i = np.where(f == 0.0, i, np.where(inside, trial, 0.5 * (below + above)))
-        return i, below, above
-
-    def converged(f: FloatArray, i: FloatArray, below: FloatArray, above: FloatArray) -> NDArray[np.bool_]:
-        # The torque matches, or the bracket has closed (at a slip bound when τ_R never reaches the measurement).
-        result: NDArray[np.bool_] = (np.abs(f) <= _TORQUE_TOL) | (np.abs(above - below) <= 1e-9)
-        return result
-
-    def sweep(
-        sel: NDArray[np.intp] | None, i: FloatArray, w: FloatArray, iterations: int
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """One sweep on the samples ``sel``: (i, DP at the old W, new W)."""
-        target = tau if sel is None else tau[sel]
-        f2 = force2 if sel is None else force2[sel]
-        below, above = np.full(i.size, lo), np.full(i.size, hi)
-        i, below, above = newton(sel, i, w, target, iterations, below, above)
-        d, t = forces(sel, w, i)
-        for attempt in range(10):  # the samples the fixed iterations left unconverged
-            f = t - target
-            below, above = np.where(f < 0.0, i, below), np.where(f > 0.0, i, above)
-            bad = np.flatnonzero(~converged(f, i, below, above))
-            if not bad.size:
-                break
-            sub = bad if sel is None else sel[bad]
-            if attempt == 0:
-                # The bracket's ends may still be the slip bounds, assumed rather than evaluated: evaluate them.
-                # τ_R at the lower bound above the measurement (or at the upper one below it): the bound solves.
-                f_lo = forces(sub, w[bad], np.full(bad.size, lo))[1] - target[bad]
-                f_hi = forces(sub, w[bad], np.full(bad.size, hi))[1] - target[bad]
-                at_lo, at_hi = f_lo >= 0.0, (f_hi <= 0.0) & (f_lo < 0.0)
-                below[bad] = np.where(at_lo, lo, np.where(at_hi, hi, below[bad]))
-                above[bad] = np.where(at_lo, lo, np.where(at_hi, hi, above[bad]))
-                i[bad] = np.where(at_lo, lo, np.where(at_hi, hi, i[bad]))
-            i[bad], below[bad], above[bad] = newton(sub, i[bad], w[bad], target[bad], 4, below[bad], above[bad])
-            d[bad], t[bad] = forces(sub, w[bad], i[bad])
-        return i, d, np.sqrt(np.maximum(f2 - d**2, 1e-6))
-
-    if not tau.size:
-        return slip, load, np.zeros(0)
-    previous = load
-    for iterations, _ in sweeps:
-        slip, _, updated = sweep(None, slip, load, iterations)
-        previous, load = load, updated
-    # Samples whose W still moved in the last sweep get up to three more (a heavily skidding wheel's W may not settle).
-    for _ in range(3):
-        moving = np.flatnonzero(np.abs(load - previous) > _LOAD_TOL)
-        if not moving.size:
-            break
-        slip[moving], _, updated = sweep(moving, slip[moving], load[moving], 2)
-        previous[moving], load[moving] = load[moving], updated
-    dp = forces(None, load, slip)[0]
-    return slip, load, dp
-
-
-class RoverReplay:
+class RoverReplay(ChangeLocation):
     """:class:`~terrain_analysis.sim2real.model.ReplayModel` of one rover bag (module docstring)."""
 
     vehicle = "rover"
@@ -887,7 +351,7 @@ class RoverReplay:
         """Sensor-level effects undone on the measured inputs."""
         s = self.series
         bias = effects.get("load_cell_bias", {})
-        b = np.array([bias.get(f"load_cell_bias_{w}", 0.0) for w in _WHEELS])
+        b = np.array([bias.get(f"load_cell_bias_{w}", 0.0) for w in WHEELS])
         c = float(effects.get("load_cell_crosstalk", {}).get("load_cell_crosstalk", 0.0))
         axial = s.load_axial - b
         perp = s.load_perpendicular
@@ -1196,162 +660,6 @@ class RoverReplay:
         if state:
             self.regimes["mean slip (–)"] = (self._t, np.mean(state["slip"], axis=1))
 
-    def _adapt_candidates(self, catalogue: Mapping[str, Candidate]) -> dict[str, Candidate]:
-        """The catalogue's candidates; the soil-change distance starts where the bag's residual says.
-
-        The distance's bounds stay the catalogue's; its start (``off``, immaterial
-        while the soil scales are 1) is the location :meth:`_change_location`
-        finds on the wheel-centre positions the bag covers, 5 mm apart, else the
-        middle of the wheels' travel.
-        """
-        out = dict(catalogue)
-        if "soil_change" in out:
-            found: float | None = None
-            x = self._wheel_x()
-            use = (self._t >= self._t[0] + self.warmup) & self._inside
-            lo = max(0.0, float(np.min(x[use])))
-            hi = min(10.0, float(np.max(x[use])))
-            if hi > lo:
-                count = int(min(200, max(2, math.ceil((hi - lo) / 5e-3) + 1)))
-                found = self._change_location(np.linspace(lo, hi, count))
-            params = []
-            for prm in out["soil_change"].parameters:
-                if prm.name == "soil_change_distance" and hi > lo:
-                    if found is not None:
-                        params.append(FitParameter(prm.name, prm.unit, found, prm.bounds, _LOCATION_SCALE))
-                    else:
-                        mid = 0.5 * (lo + hi)
-                        params.append(FitParameter(prm.name, prm.unit, mid, prm.bounds, max(0.25 * (hi - lo), 1e-3)))
-                else:
-                    params.append(prm)
-            out["soil_change"] = Candidate("soil_change", tuple(params), out["soil_change"].description)
-        return out
-
-    def _change_location(self, grid: FloatArray) -> float | None:
-        """Where along the path a soil change would best explain the nominal residual (a start for the fit).
-
-        A linearised change-point scan on the training part of the default
-        split (:func:`~terrain_analysis.sim2real.attribution.held_out_mask`;
-        the held-out part is never looked at). For each soil-change scale k
-        (at its typical value) and wheel j, J_jk is the change of every channel
-        (in units of σ) when wheel j alone runs on that soil over the whole
-        bag (12 replays). A change at d then predicts the nominal residual
-        r ≈ Σ_k β_k Σ_j [x_j ≥ d] J_jk, linear in β (the same soil under every
-        wheel, as the plant's); the start is the d of the grid with the lowest
-        residual sum of squares, refined by the replay itself
-        (:meth:`_refine_location`). The fit's own gradient cannot move d far: the
-        cost depends on it only through the few samples at the wheels'
-        crossings, and it is flat while the scales are 1 (measured on the
-        withheld-effect suite's six soil-change bags: started in the middle of
-        the travel, the fit stayed 10–44 cm from the change on three; the
-        linearised scan alone starts it within 14 mm on five, 12 cm off on the
-        sixth, where a loose soil meets a sharp step and the linearisation
-        prefers the later onset of the largest residual; with the refinement
-        within 8 mm on all six, 1 mm on that one). None: nothing to scan.
-        """
-        from terrain_analysis.sim2real.attribution import AttributionSettings, held_out_mask
-        from vehicle_sim.effects import CATALOGUE
-
-        train, _ = held_out_mask(cast(ReplayModel, self), AttributionSettings())
-        use = train[self.channels[0].name]
-        if np.count_nonzero(use) < 10:
-            return None
-        effect = CATALOGUE["rover"]["soil_change"]
-        names = [c.name for c in self.channels]
-        sigma = np.array([c.noise_std for c in self.channels])
-        _, nominal = self._compute({})
-        residual = np.stack([(self.measured[c] - nominal[c])[use] for c in names], axis=1) / sigma
-        scales = [p for p in effect.parameters if p.name != "soil_change_distance"]
-        jac = np.zeros((3, len(scales), int(np.count_nonzero(use)), len(names)))
-        values = {p.name: p.off for p in effect.parameters}
-        try:
-            for k, prm in enumerate(scales):
-                changed = {**values, prm.name: prm.typical}
-                for j in range(3):
-                    weights = np.zeros((self._t.size, 3))
-                    weights[:, j] = 1.0
-                    self._soil_weights = weights.ravel()
-                    _, pred = self._compute({"soil_change": changed})
-                    jac[j, k] = np.stack([(pred[c] - nominal[c])[use] for c in names], axis=1) / sigma
-        finally:
-            self._soil_weights = None
-        x = self._wheel_x()[use]
-        target = residual.ravel()
-        rss = np.full(grid.size, np.inf)
-        for m, d in enumerate(grid):
-            design = np.einsum("nj,jknc->nck", (x >= d).astype(float), jac).reshape(-1, len(scales))
-            if not np.any(design):
-                continue
-            beta, *_ = np.linalg.lstsq(design, target, rcond=None)
-            rss[m] = float(np.sum((target - design @ beta) ** 2))
-        if not np.any(np.isfinite(rss)):
-            return None
-        return self._refine_location(float(grid[int(np.argmin(rss))]), grid, scales, train)
-
-    def _refine_location(
-        self, start: float, grid: FloatArray, scales: Sequence[Any], train: Mapping[str, NDArray[np.bool_]]
-    ) -> float:
-        """The linearised scan's location ``start`` corrected by the replay's own training cost.
-
-        The linearisation (each wheel's response to a typical soil, scaled) misjudges a soil
-        far from the typical one: a loose soil meeting a sharp step puts its lowest RSS 12 cm
-        beyond the change. The replay's training cost is sharp at the change once the soil
-        scales are right (a change put too early sends the wheels before it into the wrong
-        soil; too late costs the samples in between). So the scales are fitted with the
-        distance held at ``start`` (the engine's screen of starts: off, ± the typical change,
-        an 11-point grid of each scale; then at most :data:`_LOCATION_NFEV` trust-region
-        evaluations), the distance is scanned with them over the points of ``grid`` within
-        :data:`_LOCATION_WINDOW`, and the two steps repeat from the lowest cost until the
-        location stays (at most :data:`_LOCATION_ROUNDS` rounds: scales fitted 12 cm from the
-        change put it 3 cm early on the test's rolling-terrain run, the second round on it).
-        """
-        from scipy import optimize
-
-        names = [c.name for c in self.channels]
-        sigma = {c.name: c.noise_std for c in self.channels}
-        measured = {c: self.measured[c][train[c]] for c in names}
-
-        def residual(distance: float, v: FloatArray) -> FloatArray:
-            values = {"soil_change_distance": distance, **{p.name: float(x) for p, x in zip(scales, v, strict=True)}}
-            pred = self._compute({"soil_change": values})[1]
-            r = np.concatenate([(measured[c] - pred[c][train[c]]) / sigma[c] for c in names])
-            return np.where(np.isfinite(r), r, 1e3)
-
-        lo = np.array([p.fit_range[0] for p in scales])
-        hi = np.array([p.fit_range[1] for p in scales])
-        off = np.array([p.off for p in scales])
-        typical = np.abs(np.array([p.typical for p in scales]) - off)
-        span = hi - lo
-        screen = [off]
-        for k in range(len(scales)):
-            for v in (off[k] + typical[k], off[k] - typical[k], *np.linspace(lo[k], hi[k], 11)):
-                screen.append(np.where(np.arange(len(scales)) == k, v, off))
-        costs = [float(np.sum(residual(start, np.clip(s, lo, hi)) ** 2)) for s in screen]
-        fitted = screen[int(np.argmin(costs))]
-        location = start
-        for _ in range(_LOCATION_ROUNDS):
-            first = np.clip(fitted, lo + 1e-6 * span, hi - 1e-6 * span)
-            try:
-                fitted = optimize.least_squares(
-                    lambda v, d=location: residual(d, v),
-                    first,
-                    bounds=(lo, hi),
-                    x_scale=typical,
-                    max_nfev=_LOCATION_NFEV,
-                    diff_step=1e-3,
-                ).x
-            except (ValueError, FloatingPointError):  # pragma: no cover - defensive
-                fitted = first
-            near = [float(d) for d in grid if abs(d - location) <= _LOCATION_WINDOW]
-            if not near:
-                break
-            cost = [float(np.sum(residual(d, fitted) ** 2)) for d in near]
-            moved = near[int(np.argmin(cost))]
-            if moved == location:
-                break
-            location = moved
-        return location
-
     def predict(
         self, effects: Mapping[str, Mapping[str, float]], nuisance: Mapping[str, float]
     ) -> dict[str, FloatArray]:
@@ -1363,6 +671,10 @@ class RoverReplay:
 # ---------------------------------------------------------------------------
 # Building
 # ---------------------------------------------------------------------------
+
+
+#: The sensor noise σ of the config (``noise.*``) the replay propagates into its noise budgets.
+_NOISE = ("acceleration", "pitch_rate", "bogie_angle", "wheel_angle", "forward_speed", "load_cell")
 
 
 def _config_values(config: str | Path | None) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -1400,14 +712,7 @@ def build_model_from_series(
             "estimator.load_cell_axes = 1: the rover replay needs two-axis load cells (force.x and force.z); "
             "with one axis W, DP and the contact angle of a wheel are not separable"
         )
-    noise = {
-        "acceleration": float(est["noise.acceleration"]),
-        "pitch_rate": float(est["noise.pitch_rate"]),
-        "bogie_angle": float(est["noise.bogie_angle"]),
-        "wheel_angle": float(est["noise.wheel_angle"]),
-        "forward_speed": float(est["noise.forward_speed"]),
-        "load_cell": float(est["noise.load_cell"]),
-    }
+    noise = {name: float(est[f"noise.{name}"]) for name in _NOISE}
     if progress is not None:
         progress(f"building the rover replay ({series.t.size} samples)")
     return RoverReplay(
@@ -1441,12 +746,7 @@ def build_model(
         Sim2RealError: missing topic or joint, non-finite values, single-axis load cells, too short.
     """
     est, _ = _config_values(config)
-    joints = {
-        "bogie": str(est["joints.bogie"]),
-        "rear": str(est["joints.rear_wheel"]),
-        "middle": str(est["joints.middle_wheel"]),
-        "front": str(est["joints.front_wheel"]),
-    }
+    joints = {"bogie": str(est["joints.bogie"]), **{w: str(est[f"joints.{w}_wheel"]) for w in WHEELS}}
     if progress is not None:
         progress(f"reading {bag}")
     series = read_rover_bag(bag, namespace=namespace or "/rover", joints=joints)
