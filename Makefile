@@ -30,7 +30,7 @@ export OMP_NUM_THREADS ?= 1
 
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc reproduce-skid reproduce-rover bench bench-load mutate property-long bags clean distclean constraints validate-sim2real validate-sim2real-seed2027 sim2real-real-data
+.PHONY: setup demo test lint typecheck unit reproduce reproduce-qc reproduce-skid reproduce-rover bench bench-load mutate property-long bags clean distclean constraints validate-sim2real validate-sim2real-seed2027 validate-sim2real-independent sim2real-real-data sim2real-screenshot
 
 setup: $(PKGS_STAMP)
 
@@ -105,6 +105,26 @@ validate-sim2real: setup
 	$(PY) -m terrain_analysis.tools.validate_sim2real --out out/sim2real_validation --per-effect $(PER_EFFECT) --controls $(CONTROLS) \
 		--jobs 2 --report docs/results/sim2real/validation.md
 	$(PY) -m terrain_analysis.tools.sim2real_results
+
+# The same diagnosis scored on bags of the second, independent generator (vehicle_sim.independent: its
+# own plants, tire and soil laws and effect forms; the diagnosis does not import it), with structure-gap
+# controls whose right answer is "the model's structure differs" (issue 22). Quarter car and skid steer.
+validate-sim2real-independent: setup
+	$(PY) -m terrain_analysis.tools.validate_sim2real --generator independent --out out/sim2real_validation_independent \
+		--per-effect $(PER_EFFECT) --controls $(CONTROLS) --jobs 2 --report docs/results/sim2real/validation_independent.md
+
+# The sim-to-real report as a person sees it (issue 22): diagnose SIM2REAL_BAG into out/sim2real_report
+# (diagnosis.md, diagnosis.html, diagnosis.json, figures), then render diagnosis.html in headless chromium
+# (Debian: apt-get install chromium) and save its first screen as out/sim2real_report/screenshot.png.
+# The diagnosis's exit status 1 is a finding (a gap), not a failure.
+SIM2REAL_BAG     ?= bags/skid_steer_s_shape
+SIM2REAL_VEHICLE ?= skid_steer
+sim2real-screenshot: setup
+	$(PY) -m terrain_analysis.tools.sim2real_screenshot --check
+	$(PY) -m terrain_analysis.tools.sim2real $(SIM2REAL_BAG) --vehicle $(SIM2REAL_VEHICLE) -o out/sim2real_report -q; \
+		status=$$?; [ $$status -le 1 ] || exit $$status
+	$(PY) -m terrain_analysis.tools.sim2real_screenshot out/sim2real_report/diagnosis.html \
+		-o out/sim2real_report/screenshot.png
 
 # The same with another seed: a second suite, drawn after the diagnosis was developed on the first.
 validate-sim2real-seed2027: setup

@@ -1,4 +1,4 @@
-"""The demo's rover summary (``terrain_analysis.tools.demo.ROVER``) on synthetic messages: no ROS graph.
+"""The demo's rover summary (``terrain_analysis.tools.demo_kinds.ROVER``) on synthetic messages: no ROS graph.
 
 Ground truth at 50 Hz and estimates at 5 Hz with known errors (large before
 the settle time, constant after), two terrain models whose last one is off
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
 
-from terrain_analysis.tools import demo
+from terrain_analysis.tools import demo, demo_kinds, demo_record
 from terrain_msgs.msg import TerrainResponseModel, WheelTerrain, WheelTerrainArray
 
 DURATION = 10.0
@@ -74,9 +74,9 @@ def _model(ns: int, offset: float, slip_max: float) -> TerrainResponseModel:
     return msg
 
 
-def _run(models: list[Any]) -> demo.DemoRun:
+def _run(models: list[Any]) -> demo_record.DemoRun:
     scenario = next(s for s in demo.SCENARIOS if s.vehicle == "rover")
-    assert scenario.kind is demo.ROVER
+    assert scenario.kind is demo_kinds.ROVER
     scenario = dataclasses.replace(scenario, duration=DURATION)
     # the truth lists its wheels front first: the summary goes by name
     truth = [
@@ -85,10 +85,10 @@ def _run(models: list[Any]) -> demo.DemoRun:
     estimates = []
     for n in range(1, round(DURATION * 5)):  # 0.2 .. 9.8 s
         t = n * 0.2
-        error = 1.0 if t < demo.ROVER_SETTLE else 0.0  # excluded from the rms
+        error = 1.0 if t < demo_kinds.ROVER_SETTLE else 0.0  # excluded from the rms
         values = {q: v + error + OFFSETS.get(q, 0.0) for q, v in _truth_values(t).items()}
         estimates.append(_array(n * 200_000_000, values, VARIANCE, WHEELS))
-    return demo.DemoRun(
+    return demo_record.DemoRun(
         scenario=scenario,
         estimates=estimates,
         truth=truth,
@@ -96,14 +96,14 @@ def _run(models: list[Any]) -> demo.DemoRun:
         diagnostic_message="Estimator 1+2: fine",
         diagnostic_values={"nis_mean": "19.5", "nis_window": "48"},
         wall_time=3.25,
-        other_estimates={demo.ROVER_MODEL_TOPIC: models},
+        other_estimates={demo_kinds.ROVER_MODEL_TOPIC: models},
     )
 
 
 def test_rover_summary_against_known_errors(tmp_path):
     slip_max = 0.08  # holds part of the truth's slip range 0.03 .. 0.09
     models = [_model(9_000_000_000, 5.0, 1.0), _model(9_500_000_000, MODEL_OFFSET, slip_max)]
-    r = demo.ROVER.summarise(_run(models))
+    r = demo_kinds.ROVER.summarise(_run(models))
 
     assert r.times.size == r.expected_estimates == 49
     assert r.sim_time == pytest.approx(9.8)
@@ -120,17 +120,17 @@ def test_rover_summary_against_known_errors(tmp_path):
     assert 0.0 < r.model_coverage < 1.0
     assert (r.nis_mean, r.nis_window) == (19.5, 48)
 
-    table = demo.ROVER.table([r])
+    table = demo_kinds.ROVER.table([r])
     row = table.splitlines()[2]
     for cell in ("49/49", "0.0100", "0.200", "0.500", "0.00200", "2 (9.0)", "0.30 (0.55;", "19.50 (last 48)", "OK: "):
         assert cell in row, (cell, row)
 
-    path = demo.ROVER.plot(r, tmp_path)
+    path = demo_kinds.ROVER.plot(r, tmp_path)
     assert path.name == "rover_wheel_terrain.png" and path.stat().st_size > 0
 
 
 def test_rover_summary_without_a_terrain_model():
-    r = demo.ROVER.summarise(_run([]))
+    r = demo_kinds.ROVER.summarise(_run([]))
     assert r.model_times.size == 0 and math.isnan(r.model_dp_rms)
-    row = demo.ROVER.table([r]).splitlines()[2]
+    row = demo_kinds.ROVER.table([r]).splitlines()[2]
     assert "| 0 " in row and "n/a" in row

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import pytest
 
-from terrain_analysis.reporting import write_section
+from terrain_analysis.reporting import Provenance, write_section
 from terrain_analysis.tools import qc_consistency as qcc
 
 # (vehicle) → (cells, mean e²/σ² band, within-2σ band)
@@ -81,7 +81,8 @@ def test_section_is_written_into_the_page(runs: dict, tmp_path) -> None:
     page = tmp_path / "quarter_car.md"
     page.write_text("# page written by reproduce_qc\n\nkept\n")
     results = [r for vehicle in sorted(runs) for r in runs[vehicle]]
-    text = qcc.section(results, ["--quick"], 1.0, 1)
+    provenance = Provenance("python -m terrain_analysis.tools.qc_consistency --quick", 1, 1.0, 1.0, len(results))
+    text = qcc.section(results, provenance)
     write_section(page, "qc-consistency", text)
     write_section(page, "qc-consistency", text)  # replaced in place, not appended twice
     out = page.read_text()

@@ -1,8 +1,20 @@
-"""What the reproduction commands share: report assembly, summary claims, statistics, the CLI.
+"""The report writer of the reproductions: header and provenance, seeds, claim table, figures, sections.
 
-Each ``reproduce_*`` tool simulates, estimates and writes a Markdown report
-with figures; this module holds the pieces they have in common so that every
-report states its command, revision and cost the same way.
+Each ``reproduce_*`` tool runs a plan on :mod:`terrain_analysis.experiment`
+and writes a Markdown page with figures; this module holds everything the
+pages have in common, so that every page states its command, revision, source
+hashes and cost the same way and keeps only its paper-specific metrics and
+text:
+
+* :class:`Report` gathers a page's sections, figures, claims and "not
+  reproduced" notes; :func:`write_page` assembles the page (title, the
+  "written by the command" note, :func:`provenance_lines`, the page's own
+  bullets such as run counts and seeds, the summary with
+  :func:`claims_table` and :func:`claims_verdict`, the sections, the "What
+  did not reproduce and why" tail) and keeps the sections other commands
+  wrote into it;
+* :func:`provenance_sentence` is the same provenance for a section that a
+  command writes into another page (:func:`write_section`).
 """
 
 from __future__ import annotations
@@ -21,10 +33,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = [
+    "WRITTEN_BY",
     "Claim",
+    "Provenance",
     "Report",
     "SummaryRow",
     "claims_table",
+    "claims_verdict",
+    "provenance_lines",
+    "provenance_sentence",
+    "source_digests",
+    "write_page",
     "cpu_seconds",
     "format_number",
     "git_revision",
@@ -84,6 +103,11 @@ class SummaryRow:
             return "yes"
         return "**no** (censored: lower bound)" if self.censored else "**no**"
 
+    def cells(self) -> list[str]:
+        """The row's cells in the claim table (the paper's value is a number: 3 significant digits)."""
+        quantity = self.quantity.replace("|", "\\|")
+        return [self.case, quantity, f"{self.computed:.3g}", f"{self.paper:g}", self.criterion, self.verdict]
+
 
 @dataclass
 class Claim:
@@ -100,14 +124,27 @@ class Claim:
     def verdict(self) -> str:
         return "info" if self.holds is None else ("yes" if self.holds else "**no**")
 
+    def cells(self) -> list[str]:
+        """The row's cells in the claim table (4 significant digits; every cell's pipes escaped)."""
+        cells = [self.case, self.quantity, f"{self.computed:.4g}", self.paper, self.criterion, self.verdict]
+        return [x.replace("|", "\\|") for x in cells]
 
-def claims_table(claims: Sequence[Claim]) -> str:
+
+def claims_table(claims: Sequence[Claim | SummaryRow]) -> str:
     """The summary as a Markdown table (case | quantity | computed | paper | criterion | holds?)."""
     out = ["| case | quantity | computed | paper | criterion | holds? |", "|---|---|---|---|---|---|"]
-    for c in claims:
-        cells = [c.case, c.quantity, f"{c.computed:.4g}", c.paper, c.criterion, c.verdict]
-        out.append("| " + " | ".join(x.replace("|", "\\|") for x in cells) + " |")
+    out += ["| " + " | ".join(c.cells()) + " |" for c in claims]
     return "\n".join(out)
+
+
+def claims_verdict(claims: Sequence[Claim | SummaryRow]) -> str:
+    """The line under the claim table: how many claims hold, and where the failures are discussed."""
+    failed = sum(c.holds is False for c in claims)
+    return f"**{sum(c.holds is True for c in claims)} of {sum(c.holds is not None for c in claims)} claims hold**" + (
+        f'; the {failed} rows marked **no** are discussed in "What did not reproduce and why" at the end.'
+        if failed
+        else "."
+    )
 
 
 @dataclass
@@ -116,7 +153,7 @@ class Report:
 
     out: Path
     fig_dir: Path
-    rows: list[SummaryRow] = field(default_factory=list)
+    rows: list[SummaryRow | Claim] = field(default_factory=list)
     sections: list[str] = field(default_factory=list)
     not_reproduced: list[str] = field(default_factory=list)
     figures: list[Path] = field(default_factory=list)
@@ -150,9 +187,24 @@ class Report:
         self.rows.append(SummaryRow(case, quantity, computed, paper, text, holds, censored))
         return holds
 
+    def claim(
+        self, case: str, quantity: str, computed: float, paper: str, criterion: str, holds: bool | None
+    ) -> bool | None:
+        """Add a summary row whose paper value is text (qualitative, or a number with its own criterion)."""
+        self.rows.append(Claim(case, quantity, computed, paper, criterion, holds))
+        return holds
+
     def fig(self, name: str) -> Path:
         path = self.fig_dir / name
         self.figures.append(path)
+        return path
+
+    def save_figure(self, fig: Any, name: str) -> Path:
+        """Save a matplotlib figure as ``fig_dir/name`` (tight layout, 110 dpi), close it, return its path."""
+        fig.tight_layout()
+        path = self.fig(name)
+        fig.savefig(path, dpi=110)
+        pyplot().close(fig)
         return path
 
     def link(self, path: Path, alt: str) -> str:
@@ -200,6 +252,143 @@ def git_revision() -> str:
         return "unknown"
 
 
+_PACKAGES = ("terrain_estimation", "terrain_analysis", "vehicle_sim")
+
+
+def source_digests() -> dict[str, str]:
+    """Per package of the project, the first 12 hex digits of the SHA-256 of its Python sources.
+
+    The digest covers every ``*.py`` file of the package (relative path and bytes, in sorted order), so a
+    page computed from a modified working tree still names the code that computed it; a package that
+    cannot be imported is left out.
+    """
+    import hashlib
+    import importlib.util
+
+    out: dict[str, str] = {}
+    for name in _PACKAGES:
+        spec = importlib.util.find_spec(name)
+        if spec is None or not spec.submodule_search_locations:
+            continue
+        root = Path(next(iter(spec.submodule_search_locations)))
+        digest = hashlib.sha256()
+        for path in sorted(root.rglob("*.py")):
+            digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+        out[name] = digest.hexdigest()[:12]
+    return out
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """How a page (or a section) was computed: the command, the code and the cost.
+
+    Attributes:
+        command: the command line as a user types it (``python -m ... --quick``).
+        jobs: worker processes.
+        wall_s: wall seconds of the command.
+        cpu_s: CPU seconds of the command and of every job in its workers.
+        runs: simulated runs (jobs of the plan).
+        what: what a run is ("simulated rides").
+        quick: a ``--quick`` smoke run (flagged: too few runs to compare).
+    """
+
+    command: str
+    jobs: int
+    wall_s: float
+    cpu_s: float
+    runs: int
+    what: str = "simulated runs"
+    quick: bool = False
+
+    @classmethod
+    def of(cls, module: str, argv: Sequence[str], runner: Any, *, what: str = "", quick: bool = False) -> Provenance:
+        """The provenance of ``python -m module argv`` run on an :class:`~terrain_analysis.experiment.Runner`."""
+        command = f"python -m {module} {' '.join(argv)}".strip()
+        return cls(command, runner.jobs, runner.wall_s, runner.cpu_s, runner.n_tasks, what or runner.what, quick)
+
+
+def _sources_text() -> str:
+    return ", ".join(f"{name} `{digest}`" for name, digest in source_digests().items())
+
+
+def provenance_lines(prov: Provenance) -> list[str]:
+    """The header bullets of a page: command, git revision, source hashes, wall and CPU time."""
+    return [
+        f"- Command: `{prov.command}`" + ("  (**--quick smoke run: too few runs to compare**)" if prov.quick else ""),
+        f"- Git revision: `{git_revision()}`",
+        f"- Sources (SHA-256 of each package's Python files): {_sources_text()}",
+        f"- Wall time: {prov.wall_s:.0f} s on {prov.jobs} worker process(es), {prov.runs} {prov.what}; CPU time "
+        f"{prov.cpu_s:.0f} s (this process and the runs in its workers; the wall time is longer when the machine "
+        "is shared)",
+    ]
+
+
+def provenance_sentence(prov: Provenance) -> str:
+    """The same provenance as one sentence, for a section written into another command's page."""
+    return (
+        f"Written by `{prov.command}` at revision `{git_revision()}` (sources: {_sources_text()}) in "
+        f"{prov.wall_s:.0f} s on {prov.jobs} process(es), {prov.runs} {prov.what}, CPU time {prov.cpu_s:.0f} s."
+    )
+
+
+WRITTEN_BY = (
+    "Written by the command, not by hand: every number below was computed by this project's simulator and "
+    "estimator when the command ran; the paper's values are the comparison column only (DESIGN.md). Nothing "
+    "in the truth plant, the noise or the seeds was tuned towards the paper."
+)
+"""The note under a reproduction page's title."""
+
+
+def write_page(
+    rep: Report,
+    *,
+    title: str,
+    provenance: Provenance,
+    bullets: Sequence[str],
+    criteria: str,
+    general_causes: str,
+) -> Path:
+    """Write a reproduction's page ``rep.out`` and return its path.
+
+    The page: ``title``; :data:`WRITTEN_BY`; :func:`provenance_lines` and the page's own ``bullets`` (run
+    counts, seeds, truth, estimator, definitions: each a ``"- ..."`` line); "## Summary" with ``criteria``,
+    :func:`claims_table` of ``rep.rows`` and :func:`claims_verdict`; ``rep.sections``; "## What did not
+    reproduce and why" with ``rep.not_reproduced`` and ``general_causes``. Sections written into the page
+    by other commands (:func:`write_section`) are kept.
+    """
+    header = [
+        title,
+        "",
+        WRITTEN_BY,
+        "",
+        *provenance_lines(provenance),
+        *bullets,
+        "",
+        "## Summary",
+        "",
+        criteria,
+        "",
+        claims_table(rep.rows),
+        "",
+        claims_verdict(rep.rows),
+        "",
+    ]
+    tail = [
+        "## What did not reproduce and why",
+        "",
+        *(rep.not_reproduced or ["- Everything in the summary holds."]),
+        "",
+        general_causes,
+        "",
+    ]
+    text = "\n".join(header) + "\n" + "\n\n".join(rep.sections) + "\n\n" + "\n".join(tail)
+    if rep.out.exists():  # sections written by other commands (e.g. qc_consistency) stay
+        text = keep_sections(rep.out.read_text(encoding="utf-8"), text)
+    rep.out.parent.mkdir(parents=True, exist_ok=True)
+    rep.out.write_text(text, encoding="utf-8")
+    return rep.out
+
+
 def reproduction_arguments(
     prog: str,
     description: str,
@@ -210,14 +399,19 @@ def reproduction_arguments(
     quick_help: str,
     extra: Sequence[tuple[str, dict[str, Any]]] = (),
 ) -> tuple[argparse.Namespace, list[str]]:
-    """Parse a reproduction command's options (runs, out, jobs, quick and ``extra``); exit 2 on bad values.
+    """Parse a reproduction command's options (runs, out, jobs, scheduler, quick and ``extra``); exit 2 on bad values.
 
     Returns the options and the argument list as given (for the report's header).
     """
     parser = argparse.ArgumentParser(prog=prog, description=description)
     parser.add_argument(runs_flag, type=int, default=None, help=runs_help)
     parser.add_argument("--out", default="docs/results", help="output directory (default: docs/results)")
-    parser.add_argument("--jobs", type=int, default=2, help="worker processes (default: 2)")
+    parser.add_argument(
+        "--jobs", type=int, default=2, help="worker processes of a local Dask cluster; 1: in this process (default: 2)"
+    )
+    parser.add_argument(
+        "--scheduler", default=None, help="address of a running Dask scheduler (tcp://host:8786) instead of --jobs"
+    )
     for flag, options in extra:
         parser.add_argument(flag, **options)
     parser.add_argument("--quick", action="store_true", help=quick_help)

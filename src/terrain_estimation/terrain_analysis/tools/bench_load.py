@@ -85,22 +85,21 @@ Nothing here asserts a time: the figures depend on the machine (its CPU
 count and load average are printed). ``--quick`` is a smoke run (short
 drives, N = 1, 2, 3 instead of 1, 5, 10, ``events`` without the take in one row); ``--out FILE`` writes the Markdown
 report (``make bench-load`` writes ``docs/results/robustness.md``).
+
+The estimator host is :mod:`~terrain_analysis.tools.bench_load_host`, the
+tables, verdicts and page :mod:`~terrain_analysis.tools.bench_load_report`.
 """
 
 from __future__ import annotations
 
 import argparse
-import cProfile
 import dataclasses
 import functools
 import json
 import math
-import os
 import re
 import struct
-import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Sequence
@@ -110,13 +109,25 @@ from typing import Any
 import numpy as np
 
 from terrain_analysis.reporting import keep_sections
+from terrain_analysis.tools.bench_load_host import Host, host_main, namespace_of, sensor_qos
+from terrain_analysis.tools.bench_load_report import (
+    HEADER,
+    ceiling_line,
+    format_markdown,
+    format_table,
+    machine_info,
+    verdicts,
+)
 from terrain_estimation.cli import cli_main
 
 __all__ = [
+    "HEADER",
     "Case",
     "EXECUTORS",
     "FLOW_WINDOW_S",
     "cases",
+    "cdr_header",
+    "row_labels",
     "format_table",
     "main",
     "run_case",
@@ -284,10 +295,6 @@ def row_labels(quick: bool = False) -> list[str]:
 # ---------------------------------------------------------------------------
 
 
-def namespace_of(k: int) -> str:
-    return f"/v{k}"
-
-
 def _stamp_ns(msg: Any) -> int:
     return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
@@ -383,173 +390,6 @@ def expected_estimates(stream: Sequence[tuple[str, Any]], filter_rate: float = 1
     return max(0, steps - 1)
 
 
-# ---------------------------------------------------------------------------
-# Host: the estimator nodes' process
-# ---------------------------------------------------------------------------
-
-
-def sensor_qos(depth: int) -> Any:
-    """The project's sensor QoS with another depth (0: unchanged)."""
-    from rclpy.qos import QoSProfile
-
-    from terrain_estimation.ros.qos import SENSOR_QOS
-
-    if depth <= 0:
-        return SENSOR_QOS
-    return QoSProfile(
-        history=SENSOR_QOS.history,
-        depth=depth,
-        reliability=SENSOR_QOS.reliability,
-        durability=SENSOR_QOS.durability,
-    )
-
-
-def host_main(spec: dict[str, Any]) -> int:
-    """Run ``spec["vehicles"]`` estimator nodes of ``spec["vehicle"]`` (quarter car by default) under
-    ``/v0``… in one executor.
-
-    Protocol on stdin/stdout: prints ``ready`` once the nodes exist; ``start`` (a line on
-    stdin) starts the CPU count; ``stop`` ends the run (after the messages still queued are
-    taken) and prints one JSON line with the CPU seconds and the messages each node consumed.
-    """
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-
-    from terrain_estimation.nodes import make_estimator_node
-
-    if spec.get("sensor_depth"):
-        from terrain_estimation.ros import framework
-
-        bench_depth = int(spec["sensor_depth"])
-        default_qos_for = framework.qos_for
-
-        def patched_qos_for(kind: str, depth: int = 0) -> Any:  # the bench's depth, not the node's
-            return sensor_qos(bench_depth) if kind == "sensor" else default_qos_for(kind)
-
-        framework.qos_for = patched_qos_for
-    context = Context()
-    rclpy.init(context=context)
-    first = int(spec.get("first", 0))
-    vehicle = spec.get("vehicle", "quarter_car")
-    executor_kind = spec["executor"]
-    nodes: list[Any] = [
-        empty_callback_node(vehicle, namespace_of(k), context)
-        if spec.get("empty_callbacks")
-        else make_estimator_node(
-            vehicle,
-            namespace=namespace_of(k),
-            context=context,
-            overrides=({} if executor_kind == "events+take" else {"input.take_queued": 0})
-            | ({} if spec.get("fast_decode", True) else {"input.fast_decode": False}),
-        )
-        for k in range(first, first + spec["vehicles"])
-    ]
-    if spec.get("bare_node"):  # the framework alone: checks and adapter that do nothing
-        for node in nodes:
-            node.guard.check = lambda key, msg, now: None
-            node.adapter.handle = lambda key, msg: []
-    executor: Any
-    if executor_kind.startswith("events"):
-        from rclpy.experimental import EventsExecutor
-
-        executor = EventsExecutor(context=context)
-    else:
-        executor = SingleThreadedExecutor(context=context)
-    for node in nodes:
-        executor.add_node(node)
-
-    stop = threading.Event()
-    cpu0 = [time.process_time()]
-    started = threading.Event()
-    # The executor thread's own CPU (the callbacks, rclpy's take, the decoding): read in
-    # that thread, from the first spin after "start".
-    thread0: list[float | None] = [None]
-
-    def read_commands() -> None:
-        for line in sys.stdin:
-            if line.strip() == "start":
-                cpu0[0] = time.process_time()
-                started.set()
-            elif line.strip() == "stop":
-                break
-        stop.set()
-
-    threading.Thread(target=read_commands, daemon=True).start()
-    profiler = cProfile.Profile() if spec.get("profile") else None
-    print("ready", flush=True)
-    while not stop.is_set():
-        if thread0[0] is None and started.is_set():
-            thread0[0] = time.thread_time()
-            if profiler is not None:
-                profiler.enable()
-        executor.spin_once(timeout_sec=0.05)
-    if profiler is not None:
-        profiler.disable()
-        profiler.dump_stats(spec["profile"])
-    # What is still queued was not lost: take it before counting (until 0.3 s pass without a message).
-    handled = -1
-    quiet_since = time.monotonic()
-    while time.monotonic() - quiet_since < 0.3:
-        executor.spin_once(timeout_sec=0.05)
-        now_handled = sum(node.messages_handled for node in nodes)
-        if now_handled != handled:
-            handled = now_handled
-            quiet_since = time.monotonic()
-    cpu = time.process_time() - cpu0[0]
-    report = {
-        "cpu_s": cpu,
-        "executor_cpu_s": time.thread_time() - (thread0[0] if thread0[0] is not None else 0.0),
-        "handled": [node.messages_handled for node in nodes],
-        "updates": [node.adapter.health.updates if hasattr(node, "adapter") else 0 for node in nodes],
-        "published": [getattr(node, "published", {}) for node in nodes],
-    }
-    print(json.dumps(report), flush=True)
-    executor.shutdown()
-    for node in nodes:
-        node.destroy_node()
-    rclpy.try_shutdown(context=context)
-    return 0
-
-
-def empty_callback_node(vehicle: str, namespace: str, context: Any) -> Any:
-    """A node with the subscriptions (and estimate publishers) of ``vehicle``'s estimator node under
-    ``namespace`` whose callbacks only decode the bytes as the node does (:mod:`~terrain_estimation.ros.cdr`)
-    and count (``messages_handled``): what rclpy, the middleware and the decoding cost per message
-    before any estimator code runs. The estimate publishers never publish; they let the collector's
-    discovery finish."""
-    from rclpy.node import Node
-
-    from terrain_estimation.ros import framework
-    from terrain_estimation.ros.cdr import decoder_for
-    from terrain_estimation.vehicles import estimator_parameters, get_vehicle
-
-    entry = get_vehicle(vehicle)
-    values = estimator_parameters(entry)
-    adapter = entry.make_adapter(values, namespace)
-    node = Node("empty_callbacks", namespace=namespace, context=context)
-    node.messages_handled = 0  # type: ignore[attr-defined]
-
-    def counter(decode: Any) -> Any:
-        def count(data: bytes) -> None:
-            decode(data)
-            node.messages_handled += 1  # type: ignore[attr-defined]
-
-        return count
-
-    # framework.qos_for and the node's depth parameter, as EstimatorNode subscribes (and as the
-    # bench's deep-queue rows patch it).
-    depth = int(values["qos.sensor_depth"])
-    qos_for = framework.qos_for
-    for spec in adapter.inputs:
-        decode = decoder_for(spec.msg_type)
-        assert decode is not None, spec.msg_type  # every input type has one (test_cdr)
-        node.create_subscription(spec.msg_type, spec.topic, counter(decode), qos_for(spec.kind, depth), raw=True)
-    for spec in adapter.outputs:
-        node.create_publisher(spec.msg_type, spec.topic, qos_for(spec.kind))
-    return node
-
-
 def _profile_path(profile_dir: Path | None, label: str, first: int, processes: int) -> str:
     if profile_dir is None:
         return ""
@@ -557,76 +397,14 @@ def _profile_path(profile_dir: Path | None, label: str, first: int, processes: i
     return str(profile_dir / (name + (f".{first}" if processes > 1 else "") + ".pstats"))
 
 
-class _Host:
-    """The host subprocess, driven over its stdin/stdout."""
+def offline_ceiling(bags_dir: Path, repeats: int, vehicle: str = "quarter_car") -> dict[str, Any]:
+    """The vehicle's bag (:data:`BAG_OF`) through the adapter and filter without ROS
+    (``terrain-estimate``'s runner): the speed no executor can beat in one process."""
+    from terrain_analysis.tools.bench import bench_bag
 
-    def __init__(
-        self,
-        vehicles: int,
-        executor: str,
-        sensor_depth: int = 0,
-        first: int = 0,
-        vehicle: str = "quarter_car",
-        empty_callbacks: bool = False,
-        profile: str = "",
-        fast_decode: bool = True,
-        bare_node: bool = False,
-    ) -> None:
-        # The nodes' log (silent-input warnings once the player stops, …): shown only if the host fails.
-        self.log = tempfile.TemporaryFile(mode="w+")
-        env = dict(os.environ)
-        env.setdefault("OPENBLAS_NUM_THREADS", "1")
-        env.setdefault("OMP_NUM_THREADS", "1")
-        spec = json.dumps(
-            {
-                "vehicles": vehicles,
-                "executor": executor,
-                "sensor_depth": sensor_depth,
-                "first": first,
-                "vehicle": vehicle,
-                "empty_callbacks": empty_callbacks,
-                "profile": profile,
-                "fast_decode": fast_decode,
-                "bare_node": bare_node,
-            }
-        )
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "terrain_analysis.tools.bench_load", "--host", spec],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=self.log,
-            text=True,
-            env=env,
-        )
-        assert self.proc.stdout is not None
-        line = self.proc.stdout.readline()
-        if line.strip() != "ready":
-            self.proc.kill()
-            raise RuntimeError(f"estimator host did not start (said {line!r}):\n{self.log_tail()}")
-
-    def log_tail(self, lines: int = 20) -> str:
-        self.log.seek(0)
-        return "".join(self.log.readlines()[-lines:])
-
-    def send(self, command: str) -> None:
-        assert self.proc.stdin is not None
-        self.proc.stdin.write(command + "\n")
-        self.proc.stdin.flush()
-
-    def finish(self) -> dict[str, Any]:
-        self.send("stop")
-        assert self.proc.stdout is not None
-        line = self.proc.stdout.readline()
-        self.proc.wait(timeout=30)
-        if not line.strip():
-            raise RuntimeError(f"estimator host ended without a report:\n{self.log_tail()}")
-        return dict(json.loads(line))
-
-    def kill(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
-        self.log.close()
+    row = bench_bag(bags_dir / BAG_OF[vehicle], vehicle, repeats)
+    row["cpu_per_sim_s"] = 1.0 / row["x_real_time"]
+    return row
 
 
 # ---------------------------------------------------------------------------
@@ -683,16 +461,13 @@ def run_case(case: Case, bags_dir: Path = BAGS_DIR, profile_dir: Path | None = N
 
     per_host = -(-case.vehicles // case.processes)
     hosts = [
-        _Host(
-            min(per_host, case.vehicles - first),
-            case.executor,
-            case.sensor_depth,
-            first,
-            case.vehicle,
-            case.empty_callbacks,
-            _profile_path(profile_dir, case.label, first, case.processes),
-            case.fast_decode,
-            case.bare_node,
+        Host(
+            dataclasses.asdict(case)
+            | {
+                "vehicles": min(per_host, case.vehicles - first),
+                "first": first,
+                "profile": _profile_path(profile_dir, case.label, first, case.processes),
+            }
         )
         for first in range(0, case.vehicles, per_host)
     ]
@@ -823,240 +598,6 @@ def run_case(case: Case, bags_dir: Path = BAGS_DIR, profile_dir: Path | None = N
     }
 
 
-# ---------------------------------------------------------------------------
-# Report
-# ---------------------------------------------------------------------------
-
-HEADER = (
-    "row",
-    "vehicles",
-    "sim s",
-    "published",
-    "dropped",
-    "estimates",
-    "latency median ms",
-    "latency p99 ms",
-    "CPU s/vehicle/sim s",
-    "executor thread CPU s/sim s",
-    "player CPU s/sim s",
-    "offered x",
-    "achieved x",
-)
-
-
-def _cells(r: dict[str, Any]) -> list[str]:
-    return [
-        r["row"],
-        str(r["vehicles"]),
-        f"{r['sim_s']:.2f}",
-        str(r["published"]),
-        f"{r['dropped']} ({100 * r['dropped'] / r['published']:.1f} %)",
-        f"{r['estimates']}/{r['expected_estimates']}",
-        _figure(r["latency_median_ms"], 2),
-        _figure(r["latency_p99_ms"], 1),
-        f"{r['cpu_per_vehicle_per_sim_s']:.3f}",
-        f"{r['executor_cpu_per_sim_s']:.3f}",
-        f"{r['player_cpu_per_sim_s']:.3f}",
-        f"{r['offered_x_real_time']:.1f}",
-        f"{r['x_real_time']:.2f}",
-    ]
-
-
-def _figure(value: float, decimals: int) -> str:
-    """A figure, or ``n/a`` where there is none (latency of a row without estimates)."""
-    return f"{value:.{decimals}f}" if math.isfinite(value) else "n/a"
-
-
-def format_table(rows: Sequence[dict[str, Any]], markdown: bool = False) -> str:
-    """The figures as an aligned text table (or a Markdown table)."""
-    body = [_cells(r) for r in rows]
-    if markdown:
-        lines = ["| " + " | ".join(HEADER) + " |", "|" + "|".join("---" for _ in HEADER) + "|"]
-        lines += ["| " + " | ".join(c) + " |" for c in body]
-        return "\n".join(lines)
-    widths = [max(len(h), *(len(c[i]) for c in body)) for i, h in enumerate(HEADER)]
-    lines = [" | ".join(h.ljust(w) for h, w in zip(HEADER, widths, strict=True))]
-    lines += [" | ".join(c.ljust(w) for c, w in zip(cells, widths, strict=True)) for cells in body]
-    return "\n".join(lines)
-
-
-def machine_info() -> dict[str, Any]:
-    import platform
-
-    try:
-        load: float | None = os.getloadavg()[0]
-    except (AttributeError, OSError):
-        load = None
-    return {
-        "cpu_count": os.cpu_count(),
-        "load_avg_1min": load,
-        "platform": f"{platform.system()} {platform.machine()}",
-        "python": platform.python_version(),
-        "rmw": os.environ.get("RMW_IMPLEMENTATION", "default"),
-        "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "unset"),
-    }
-
-
-def _cpu_demand(r: dict[str, Any], cpus: int | None) -> str:
-    """What the offered rate asks of the CPUs, from the row's CPU per simulated second (a lower bound
-    where input was dropped: the nodes spent nothing on what they never took)."""
-    processes = int(r["case"].get("processes", 1))
-    per_process = r["cpu_per_vehicle_per_sim_s"] * r["vehicles"] / processes * r["offered_x_real_time"]
-    per_thread = r["executor_cpu_per_sim_s"] * r["offered_x_real_time"]
-    total = per_process * processes + r["player_cpu_per_sim_s"] * r["offered_x_real_time"]
-    if per_process < 0.8 and per_thread < 0.8 and (cpus is None or total < 0.8 * cpus):
-        return ""
-    at_least = "at least " if r["dropped"] else ""
-    text = f"; the offered rate needs {at_least}{per_process:.2f} CPU s per wall s in each estimator process"
-    text += f", {per_thread:.2f} of them in its executor thread (the callbacks run there, one at a time: 1.00 at most)"
-    if cpus is not None:
-        text += f", {total:.2f} with the player, on {cpus} CPUs"
-    return text
-
-
-def _verdicts(rows: Sequence[dict[str, Any]], cpus: int | None = None) -> list[str]:
-    """One line per target, computed from the figures (``cpus``: the machine's, for the CPU demand)."""
-    out = []
-    for r in rows:
-        case = r["case"]
-        if r["row"].startswith("(a)"):
-            continue
-        if case.get("empty_callbacks") or case.get("bare_node"):
-            offered = r["offered_x_real_time"]
-            per_message_us = 1e6 * r["executor_cpu_per_sim_s"] * r["sim_s"] / max(r["consumed"], 1)
-            what = (
-                "the node framework (decoding, take, merge; checks and estimator doing nothing)"
-                if case.get("bare_node")
-                else "message delivery alone (callbacks that only decode and count)"
-            )
-            floor = "the floor under any estimator"
-            if case.get("bare_node"):
-                floor = "the floor under this node's estimators"
-            out.append(
-                f"- {r['row']}: {what}, at {offered:.1f}x "
-                f"offered: {r['dropped']} of {r['published']} dropped; the executor thread needs "
-                f"{r['executor_cpu_per_sim_s'] * offered:.2f} CPU s per wall s ({per_message_us:.0f} us per "
-                f"message), the process {r['cpu_per_vehicle_per_sim_s'] * r['vehicles'] * offered:.2f}, "
-                f"the player {r['player_cpu_per_sim_s'] * offered:.2f}: {floor}"
-            )
-            continue
-        if case["factor"] > 0:  # paced (simulated drives at 1x, bag replays at 20x): did the node follow?
-            behind = r["x_real_time"] < 0.9 * r["offered_x_real_time"]
-            if r["dropped"]:
-                verdict = "did not keep up: dropped input"
-            elif r["node_estimates"] < r["expected_estimates"] - 2 * r["vehicles"]:
-                verdict = "no input dropped but filter steps lost (inputs served out of time order)"
-            elif behind:
-                verdict = "no input dropped (the queue held the burst) but fell behind"
-            else:
-                verdict = "kept up"
-            lost = r["node_estimates"] - r["estimates"]
-            if lost > 0:  # published by the nodes, not received (reliable, keep last 10: a busy reader loses some)
-                verdict += f"; {lost} of the {r['node_estimates']} estimates published did not reach the collector"
-            out.append(
-                f"- {r['row']}: {verdict} ({r['dropped']} of {r['published']} sensor messages dropped, "
-                f"{r['x_real_time']:.2f}x achieved of {r['offered_x_real_time']:.1f}x offered, "
-                f"latency p99 {r['latency_p99_ms']:.0f} ms){_cpu_demand(r, cpus)}"
-            )
-        else:  # as fast as the node takes it
-            out.append(
-                f"- {r['row']}: sustained {r['x_real_time']:.2f}x real time, {r['dropped']} dropped, "
-                f"{r['estimates']} of {r['expected_estimates']} estimates"
-            )
-    return out
-
-
-def offline_ceiling(bags_dir: Path, repeats: int, vehicle: str = "quarter_car") -> dict[str, Any]:
-    """The vehicle's bag (:data:`BAG_OF`) through the adapter and filter without ROS
-    (``terrain-estimate``'s runner): the speed no executor can beat in one process."""
-    from terrain_analysis.tools.bench import bench_bag
-
-    row = bench_bag(bags_dir / BAG_OF[vehicle], vehicle, repeats)
-    row["cpu_per_sim_s"] = 1.0 / row["x_real_time"]
-    return row
-
-
-def _ceiling_line(c: dict[str, Any]) -> str:
-    line = (
-        f"offline ceiling, {c['vehicle']} (bag through adapter and filter, no ROS, one core): "
-        f"{c['x_real_time']:.2f}x real time, {c['cpu_per_sim_s']:.3f} CPU s per sim s"
-    )
-    if c["vehicle"] == "quarter_car":  # one estimate per filter step
-        line += f", {c['us_per_step']:.0f} us per filter step"
-    return line
-
-
-QOS_TEXT = """\
-- Sensor topics (`imu/body`, `imu/wheel`, `joint_states`, `terrain/profile`): best effort, volatile,
-  keep last 200 (`terrain_estimation.ros.qos.SENSOR_QOS`) on the publisher and on the subscription.
-  Best effort is the contract's sensor-data profile (a best-effort subscription matches best-effort and
-  reliable drivers); the depth of 200 holds 0.15 s of the nominal quarter car's 1.3 kHz input, so a
-  stall of the estimator shorter than that loses nothing. An overflowing best-effort queue drops the
-  oldest samples: the "dropped" column.
-- Estimates (`soil_stiffness`): reliable, volatile, keep last 10 (`ESTIMATE_QOS`).
-- Executor: one per process. `single` is rclpy's `SingleThreadedExecutor` with the node's
-  `input.take_queued` at 0: one message per ready subscription per wait, the wait set rebuilt in
-  Python each time. `events`: rclpy's C++ `EventsExecutor` (`rclpy.experimental`, in the Jazzy
-  wheels), one message per callback in arrival order (`input.take_queued` 0). `events+take`: what
-  `terrain-estimator-node` runs, the same executor with the node's default `input.take_queued` (50):
-  after each delivered message the node takes what is already queued on its input subscriptions and
-  handles it merged in stamp order (each topic in its own order). A topic drained on its own would run
-  ahead of the others (the quarter car's accelerometers ahead of the 1 kHz profile, whose filter steps
-  would then be dropped for want of road).
-- Deep-queue rows (`depth 6000`): the sensor queues of both sides deep enough for the whole bag, to
-  separate loss by overflow from loss by speed.
-- The offline ceiling is the same adapter and filter fed from the bag without ROS: no executor makes
-  one node faster than that; beyond it a queue only postpones the loss (it grows without bound at a
-  sustained rate above the ceiling).
-- Namespaces: every vehicle under `/vK`, frames `vK/...`; the collector checks the frame of every
-  estimate against its topic's vehicle."""
-
-
-def format_markdown(
-    rows: Sequence[dict[str, Any]],
-    ceilings: dict[str, dict[str, Any]],
-    machine: dict[str, Any],
-    command: str,
-    quick: bool,
-) -> str:
-    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    lines = [
-        "# Robustness: many vehicles and load (issue 7 item 5)",
-        "",
-        f"Produced by `{command}` on {date}; machine: {machine['cpu_count']} CPUs, load average "
-        f"{machine['load_avg_1min']:.2f} at the end (other jobs shared the machine), {machine['platform']}, "
-        f"Python {machine['python']}, RMW {machine['rmw']}, OPENBLAS_NUM_THREADS={machine['OPENBLAS_NUM_THREADS']}."
-        + (" **Quick run** (short drives): not the figures to quote." if quick else ""),
-        "",
-        "Estimator nodes (the project's `EstimatorNode`: quarter car, SCKF, in rows (a)-(d); skid steer and rover",
-        "in (e)) run in a host process of their own, fed over DDS from a player process; each vehicle under its",
-        "own namespace `/vK` with its own soil, road and noise seeds. Latency: publication of the last sensor",
-        "message of an instant to publication of its estimate (middleware source timestamp; the skid steer's",
-        "`odom`, the rover's `wheel_terrain`). Dropped: sensor messages published minus consumed by",
-        "the nodes. CPU: host-process CPU seconds per vehicle per simulated second; executor thread: the part",
-        "spent in the thread that runs every callback (one at a time: 1 / this is the fastest replay one process",
-        "follows); player: the publishing process's own (it publishes serialised messages, as `ros2 bag play`).",
-        "Offered/achieved x:",
-        "simulated over wall seconds of the publication and of the estimates. No figure here is asserted",
-        "by a test; `test/test_bench_load_smoke.py` only checks that every row prints.",
-        "",
-        format_table(rows, markdown=True),
-        "",
-        "## Targets (computed from the table)",
-        "",
-        *_verdicts(rows, machine["cpu_count"]),
-        "",
-        *("- " + _ceiling_line(c) for c in ceilings.values()),
-        "",
-        "## QoS and queue choices",
-        "",
-        QOS_TEXT,
-        f"  Estimates in another vehicle's frame, over every row: {sum(r['foreign_frames'] for r in rows)}.",
-        "",
-    ]
-    return "\n".join(lines)
-
-
 @cli_main("make bench-load")
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
@@ -1096,10 +637,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     print()
     print(f"machine: {machine['cpu_count']} CPUs, load average {machine['load_avg_1min']}, {machine['platform']}")
     print(format_table(rows))
-    for line in _verdicts(rows, machine["cpu_count"]):
+    for line in verdicts(rows, machine["cpu_count"]):
         print(line)
     for ceiling in ceilings.values():
-        print(_ceiling_line(ceiling))
+        print(ceiling_line(ceiling))
     command = "python -m terrain_analysis.tools.bench_load" + (" --quick" if args.quick else "")
     if args.out:
         command += f" --out {args.out}"

@@ -32,9 +32,7 @@ reported beside. The section goes into the page through
 from __future__ import annotations
 
 import math
-import multiprocessing
 import sys
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,8 +40,9 @@ from typing import Any
 
 import numpy as np
 
-from terrain_analysis.reporting import git_revision, reproduction_arguments, write_section
-from terrain_analysis.tools.reproduce_qc import node_default_config
+from terrain_analysis.experiment import Runner
+from terrain_analysis.reporting import Provenance, provenance_sentence, reproduction_arguments, write_section
+from terrain_analysis.tools.qc_runs import node_default_config
 from terrain_estimation.analysis.consistency import consistency_report, window_share
 from terrain_estimation.cli import cli_main
 from terrain_estimation.estimators.soil_stiffness import SoilStiffnessEstimator
@@ -273,14 +272,9 @@ def pool(
     return stats, (nis_sum / max(nis_n, 1), nis_in / max(nis_win, 1), nis_win)
 
 
-def _execute(plan: Sequence[Case], jobs: int) -> list[tuple[Case, dict[str, np.ndarray]]]:
-    order = sorted(plan, key=lambda c: -c.duration)
-    if jobs <= 1:
-        out = [run_case(c) for c in order]
-    else:
-        with multiprocessing.get_context().Pool(jobs) as p:
-            out = list(p.imap_unordered(run_case, order, chunksize=1))
-    return sorted(out, key=lambda r: (r[0].vehicle, r[0].effect, r[0].cell, r[0].seed))
+def _order(case: Case) -> tuple[str, str, int, int]:
+    """The order of the runs in the section's tables: vehicle, effect, cell, seed."""
+    return case.vehicle, case.effect, case.cell, case.seed
 
 
 def _f(x: float, d: int = 2) -> str:
@@ -336,13 +330,12 @@ def cell_table(runs: Sequence[tuple[Case, dict[str, np.ndarray]]]) -> str:
     return "\n".join(lines)
 
 
-def section(results: Sequence[tuple[Case, dict[str, np.ndarray]]], argv: Sequence[str], wall: float, jobs: int) -> str:
+def section(results: Sequence[tuple[Case, dict[str, np.ndarray]]], provenance: Provenance) -> str:
     """The page section (Markdown)."""
     text = [
         "## Consistency of the published variances (issue 21, item 1)",
         "",
-        f"Written by `python -m terrain_analysis.tools.qc_consistency {' '.join(argv)}` at revision "
-        f"`{git_revision()}` in {wall:.0f} s on {jobs} process(es). Estimator: the node's parameter defaults "
+        f"{provenance_sentence(provenance)} Estimator: the node's parameter defaults "
         "(`config/<vehicle>.yaml`: SCKF, state ln k_s, soil-change detector on). Truth: "
         "`vehicle_sim.plants.quarter_car.simulate` (RK4 1 ms, accelerometers 100 Hz with 0.5 (m/s²)², profile "
         f"1 kHz with σ_h = 0.1 mm). Seeds: `SeedSequence([{ROOT_SEED}, vehicle, cell, seed])` → (road, noise). "
@@ -445,9 +438,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         out = out / "quarter_car.md"
     plan = build_plan(seeds, duration)
     print(f"qc_consistency: {len(plan)} runs of {duration:g} s on {args.jobs} process(es)", file=sys.stderr)
-    start = time.monotonic()
-    results = _execute(plan, args.jobs)
-    text = section(results, argv_list, time.monotonic() - start, args.jobs)
+    with Runner(args.jobs, scheduler=args.scheduler, what="truth runs") as runner:
+        results = runner.map(
+            run_case, plan, weight=lambda c: c.duration, key=lambda c: f"{c.vehicle}-{c.cell}-{c.seed}"
+        )
+        results.sort(key=lambda r: _order(r[0]))
+        text = section(results, Provenance.of("terrain_analysis.tools.qc_consistency", argv_list, runner))
     write_section(out, "qc-consistency", text)
     print(text)
     print(f"\nsection written to {out}", file=sys.stderr)

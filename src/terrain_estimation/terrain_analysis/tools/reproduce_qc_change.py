@@ -18,7 +18,9 @@ this module adds two things to that report:
 
 The same seeds rule as the rest of the reproduction: run ``i`` of seed group
 ``c`` uses ``SeedSequence([8608, c, i])``; groups 6 (quarter car, no change)
-and 7 (LRV, no change) are used by nothing else. The detector's parameters
+and 7 (LRV, no change) are used by nothing else. The rides are defined with
+the others in :mod:`~terrain_analysis.tools.qc_runs` (:func:`build_change_plan`);
+this module has their metrics and page text. The detector's parameters
 were chosen on other seeds (a development group not in this report), not on
 these.
 """
@@ -33,61 +35,26 @@ import numpy as np
 
 from terrain_analysis.reporting import format_number as _fmt
 from terrain_analysis.reporting import summary_stats as _stats
+from terrain_analysis.tools.qc_runs import (
+    GROUP_NOCHANGE,
+    GROUP_NOCHANGE_LRV,
+    NOCHANGE_SOILS,
+    TABLE4_CELLS,
+    Counts,
+    Results,
+    Trace,
+    _t4_key,
+    build_change_plan,
+)
+from terrain_analysis.tools.qc_table4 import T4_PAPER, path_metrics, table4_bound
 
 if TYPE_CHECKING:
     from terrain_analysis.reporting import Report
-    from terrain_analysis.tools.reproduce_qc import Counts, Results, RunSpec, Trace
 
 __all__ = ["build_change_plan", "change_sections", "NOCHANGE_SOILS", "GROUP_NOCHANGE", "GROUP_NOCHANGE_LRV"]
 
-GROUP_NOCHANGE = 6
-"""Seed group of the quarter car's no-change runs."""
-GROUP_NOCHANGE_LRV = 7
-"""Seed group of the LRV's no-change runs."""
-NOCHANGE_SOILS = ("lete_sand", "upland_sandy_loam", "graneville_loam")
 _START_S = 2.0
 _LABEL = "sckf_project"
-
-
-def build_change_plan(counts: Counts) -> list[RunSpec]:
-    """The no-change rides of case 2c (the Table 4 rides of case 2 carry the node-default variant)."""
-    from terrain_analysis.tools.reproduce_qc import SCKF_PROJECT, TABLE4_CELLS, RunSpec
-
-    plan: list[RunSpec] = []
-    duration = counts.nochange_duration
-    for i in range(counts.nochange):
-        soil = NOCHANGE_SOILS[i % len(NOCHANGE_SOILS)]
-        road, speed = TABLE4_CELLS[(i // len(NOCHANGE_SOILS)) % len(TABLE4_CELLS)]
-        plan.append(
-            RunSpec(
-                "nochange_qc",
-                GROUP_NOCHANGE,
-                i,
-                "quarter_car",
-                road,
-                (soil,),
-                duration,
-                speed,
-                duration,
-                (SCKF_PROJECT,),
-            )
-        )
-    for i in range(counts.nochange_lrv):
-        plan.append(
-            RunSpec(
-                "nochange_lrv",
-                GROUP_NOCHANGE_LRV,
-                i,
-                "lrv",
-                "G",
-                ("lunar_regolith",),
-                duration,
-                2.0,
-                duration,
-                (SCKF_PROJECT,),
-            )
-        )
-    return plan
 
 
 def _delays(trace: Trace, changes: Sequence[float], stretch: float) -> tuple[list[float], int]:
@@ -106,8 +73,6 @@ def _delays(trace: Trace, changes: Sequence[float], stretch: float) -> tuple[lis
 
 
 def _table4_project(rep: Report, res: Results, counts: Counts) -> None:
-    from terrain_analysis.tools.reproduce_qc import _T4_PAPER, TABLE4_CELLS, _path_metrics, _t4_key, table4_bound
-
     cells = [c for c in TABLE4_CELLS if res.get(_t4_key(*c)) and _LABEL in res[_t4_key(*c)][0]]
     if not cells:
         return
@@ -139,9 +104,9 @@ def _table4_project(rep: Report, res: Results, counts: Counts) -> None:
     n_roads = max(1, min(counts.table4, 8))
     for road, speed in cells:
         runs = res[_t4_key(road, speed)]
-        m = _path_metrics(runs, _LABEL, stretch)
+        m = path_metrics(runs, _LABEL, stretch)
         g = m["graneville_mean"]
-        paper = _T4_PAPER[(road, speed)]
+        paper = T4_PAPER[(road, speed)]
         delays: list[float] = []
         others = 0
         for r in runs:

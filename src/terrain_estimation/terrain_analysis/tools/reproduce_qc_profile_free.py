@@ -30,9 +30,7 @@ second halves, pooled over runs); the signed k_s bias with the 100 Hz profile.
 from __future__ import annotations
 
 import math
-import multiprocessing
 import sys
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -40,14 +38,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from terrain_analysis.reporting import cpu_seconds, git_revision, reproduction_arguments, write_section
+from terrain_analysis.experiment import Runner
+from terrain_analysis.reporting import Provenance, provenance_lines, reproduction_arguments, write_section
 from terrain_analysis.reporting import format_number as fmt
-from terrain_analysis.tools.reproduce_qc import (
+from terrain_analysis.tools.qc_runs import (
     _GROUP_TABLE4,
     _PATH_SOILS,
     RunSpec,
     _profile,
     _soil_path,
+    collect,
     node_default_config,
     run_seeds,
 )
@@ -421,26 +421,6 @@ def _verdict(table: dict[str, Any]) -> list[str]:
     ]
 
 
-def _execute(plan: list[RunSpec], jobs: int) -> dict[str, list[dict[str, Series]]]:
-    collected: dict[str, dict[int, dict[str, Series]]] = {}
-    start = time.monotonic()
-    if jobs <= 1:
-        it: Any = map(run_ride, plan)
-        pool = None
-    else:
-        pool = multiprocessing.get_context().Pool(jobs)
-        it = pool.imap_unordered(run_ride, plan, chunksize=1)
-    try:
-        for n, (spec, out) in enumerate(it, start=1):
-            collected.setdefault(spec.key, {})[spec.run] = out
-            print(f"  [{n}/{len(plan)} rides] {time.monotonic() - start:6.0f} s", file=sys.stderr, flush=True)
-    finally:
-        if pool is not None:
-            pool.close()
-            pool.join()
-    return {key: [runs[i] for i in sorted(runs)] for key, runs in sorted(collected.items())}
-
-
 @cli_main("reproduce-qc-profile-free")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the comparison and write its section into the quarter-car results page."""
@@ -466,15 +446,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         RunSpec("pf_lrv", _GROUP_LRV, i, "lrv", "G", (LRV_SOIL,), lrv_duration, LRV_SPEED, lrv_duration, ())
         for i in range(seeds)
     ]
-    wall = time.monotonic()
-    results = _execute(plan, args.jobs)
-    table = summarise(results, stretch)
-    lrv = summarise_lrv(results["pf_lrv"], lrv_duration)
+    with Runner(args.jobs, scheduler=args.scheduler, what="simulated rides") as runner:
+        rides = runner.map(run_ride, plan, weight=lambda s: s.duration, key=lambda s: f"{s.key}-{s.run}")
+        results = dict(sorted(collect(plan, rides).items()))
+        table = summarise(results, stretch)
+        lrv = summarise_lrv(results["pf_lrv"], lrv_duration)
+        prov = Provenance.of("terrain_analysis.tools.reproduce_qc_profile_free", given, runner, quick=args.quick)
     header = [
-        f"- Command: `python -m terrain_analysis.tools.reproduce_qc_profile_free {' '.join(given)}`".rstrip() + "",
-        f"- Git revision: `{git_revision()}`",
-        f"- Wall time {time.monotonic() - wall:.0f} s, CPU {cpu_seconds():.0f} s; seeds: run i uses "
-        f"`SeedSequence([8608, {_GROUP_TABLE4}, i])` (the Table 4 group of `reproduce_qc`).",
+        *provenance_lines(prov),
+        f"- Seeds: run i uses `SeedSequence([8608, {_GROUP_TABLE4}, i])` (the Table 4 group of `reproduce_qc`).",
     ]
     text = render(table, header, seeds) + render_lrv(lrv, seeds, lrv_duration)
     write_section(out, SECTION, text)

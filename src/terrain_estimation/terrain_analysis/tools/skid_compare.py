@@ -26,13 +26,13 @@ import sys
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from terrain_analysis.experiment import Runner
 from terrain_estimation.analysis.consistency import consistency_report
 from terrain_estimation.cli import cli_main
 from terrain_estimation.estimators.skid_steer import SkidSteerEstimator, SkidSteerEstimatorConfig
@@ -207,22 +207,12 @@ def _run_job(job: Job) -> list[RunFigures]:
     ]
 
 
-def compare(
-    jobs: Sequence[Job], *, workers: int = 1, progress: Callable[[int, int], None] | None = None
-) -> list[RunFigures]:
-    """Run every job (on ``workers`` processes) and return the figures, in job order."""
-    results: list[list[RunFigures]] = []
-    if workers <= 1:
-        for i, job in enumerate(jobs):
-            results.append(_run_job(job))
-            if progress is not None:
-                progress(i + 1, len(jobs))
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            for i, figures in enumerate(pool.map(_run_job, jobs)):
-                results.append(figures)
-                if progress is not None:
-                    progress(i + 1, len(jobs))
+def compare(jobs: Sequence[Job], *, workers: int = 1, runner: Runner | None = None) -> list[RunFigures]:
+    """Run every job on the shared runner (``runner``, else one of ``workers`` processes); the figures in job order."""
+    if runner is None:
+        with Runner(workers, what="simulated runs") as own:
+            return compare(jobs, runner=own)
+    results = runner.map(_run_job, jobs, weight=lambda j: j.window[1] * len(j.filters), key=lambda j: j.scenario)
     return [row for rows in results for row in rows]
 
 
@@ -414,7 +404,7 @@ TUNING_GYRO_STD: tuple[float, ...] = (0.002, 0.005)
 
 
 def tuning_grid(
-    base: SkidSteerEstimatorConfig, seeds: Sequence[int], *, workers: int = 1
+    base: SkidSteerEstimatorConfig, seeds: Sequence[int], *, workers: int = 1, runner: Runner | None = None
 ) -> list[tuple[tuple[float, float, float], dict[str, float]]]:
     """Q0/R0 of ``base`` on a grid, each scored on the nominal scenario: ((q scale, σ_a, σ_g), seed-mean figures).
 
@@ -437,7 +427,7 @@ def tuning_grid(
         for q, a, g in grid
     }
     jobs = [Job("nominal", functools.partial(_build, "nominal"), seed, filters, (8.0, 45.0)) for seed in seeds]
-    table = summarise(compare(jobs, workers=workers))
+    table = summarise(compare(jobs, workers=workers, runner=runner))
     out = []
     for q, a, g in grid:
         v = dict(table[("nominal", f"{q:g},{a:g},{g:g}")])
@@ -473,12 +463,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     """``python -m terrain_analysis.tools.skid_compare [--seeds N] [--jobs J] [--scenarios A,B] [--out FILE]``."""
     import argparse
 
-    from terrain_analysis.reporting import git_revision, write_section
+    from terrain_analysis.reporting import Provenance, provenance_sentence, write_section
     from vehicle_sim.plants.skid_steer_scenarios import REPRODUCTION_SCENARIO_NAMES
 
     parser = argparse.ArgumentParser(prog="skid_compare", description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20, help="seeds per scenario (default 20)")
-    parser.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    parser.add_argument(
+        "--jobs", type=int, default=2, help="worker processes of a local Dask cluster; 1: in this process (default 2)"
+    )
+    parser.add_argument("--scheduler", default=None, help="address of a running Dask scheduler instead of --jobs")
     parser.add_argument("--scenarios", default=None, help="comma-separated (default: every reproduction scenario)")
     parser.add_argument("--out", default=None, help="Markdown file to write the section 'fair-comparison' into")
     parser.add_argument(
@@ -494,27 +487,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         "(its filter over brush_scales); section 'consistent-tuning'",
     )
     args = parser.parse_args(argv)
+    given = list(sys.argv[1:] if argv is None else argv)
     if args.tune:
-        return _tune(args.seeds, args.jobs, args.out)
+        return _tune(args.seeds, args.jobs, args.out, given, args.scheduler)
     if args.seeds < 1 or args.jobs < 1:
         raise ValueError(f"--seeds and --jobs must be >= 1, got {args.seeds} and {args.jobs}")
     names = args.scenarios.split(",") if args.scenarios else list(REPRODUCTION_SCENARIO_NAMES)
     filters = consider_filters() if args.consider else None
     jobs = plan(names, [1000 + i for i in range(args.seeds)], filters)
-    started = time.perf_counter()
-
-    def progress(done: int, total: int) -> None:
-        elapsed = time.perf_counter() - started
-        eta = elapsed / done * (total - done)
-        print(f"\r{done}/{total} runs, {elapsed:.0f} s, ETA {eta:.0f} s", end="", file=sys.stderr, flush=True)
-
-    rows = compare(jobs, workers=args.jobs, progress=progress)
-    print(file=sys.stderr)
-    text = consider_markdown(rows) if args.consider else markdown(rows)
-    flag = " --consider" if args.consider else ""
+    with Runner(args.jobs, scheduler=args.scheduler, what="simulated runs") as runner:
+        rows = compare(jobs, runner=runner)
+        text = consider_markdown(rows) if args.consider else markdown(rows)
+        prov = Provenance.of("terrain_analysis.tools.skid_compare", given, runner)
     header = (
-        f"Produced by `python -m terrain_analysis.tools.skid_compare{flag} --seeds {args.seeds}` at revision "
-        f"{git_revision()} in {time.perf_counter() - started:.0f} s ({args.jobs} processes). Truth: "
+        f"{provenance_sentence(prov)} Truth: "
         "`vehicle_sim.plants.skid_steer_scenarios.reproduction_scenarios()` (magic-formula tire, roll/pitch "
         "dynamics, relaxation; seeds 1000.., sensor noise only). Errors against the plant's truth at 100 Hz "
         f"from 8 s (2 s for the acceleration run) to the end; e_beta where the speed exceeds {BETA_MIN_SPEED} "
@@ -529,17 +515,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def _tune(seeds: int, jobs: int, out: str | None) -> int:
-    from terrain_analysis.reporting import git_revision, write_section
+def _tune(seeds: int, jobs: int, out: str | None, given: Sequence[str], scheduler: str | None = None) -> int:
+    from terrain_analysis.reporting import Provenance, provenance_sentence, write_section
     from terrain_estimation.models.skid_steer_observer import DEFAULT_Q0_DIAG
 
-    started = time.perf_counter()
     parts = []
     filters = _filters()
     shipped = {"brush": filters["UKF, tuned"], "brush_scales": filters["default"]}
+    grids = {}
+    with Runner(jobs, scheduler=scheduler, what="simulated runs") as runner:
+        for model, config in shipped.items():
+            print(f"tuning {config.filter} over {model} ({seeds} seeds)", file=sys.stderr, flush=True)
+            grids[model] = tuning_grid(config, [1000 + i for i in range(seeds)], runner=runner)
     for model, config in shipped.items():
-        print(f"tuning {config.filter} over {model} ({seeds} seeds)", file=sys.stderr, flush=True)
-        grid = tuning_grid(config, [1000 + i for i in range(seeds)], workers=jobs)
+        grid = grids[model]
         parts.append(tuning_markdown(model, config.filter, grid))
         # The shipped constants against the grid's choice, each time the grid runs.
         (q, a, g), _ = min(grid, key=lambda row: row[1]["cost"])
@@ -551,9 +540,9 @@ def _tune(seeds: int, jobs: int, out: str | None) -> int:
             f"R0 {', '.join(f'{v:.3g}' for v in config.r0_diag)}): "
             + ("**the grid's choice**." if same else f"**differs from the grid's choice** (Q0 x{q:g}, {a:g}, {g:g}).")
         )
+    prov = Provenance.of("terrain_analysis.tools.skid_compare", given, runner)
     text = (
-        f"Produced by `python -m terrain_analysis.tools.skid_compare --tune --seeds {seeds}` at revision "
-        f"{git_revision()} in {time.perf_counter() - started:.0f} s. Each row: the estimator with that Q0 "
+        f"{provenance_sentence(prov)} Each row: the estimator with that Q0 "
         "(a multiple of B.10's) and R0 on the nominal truth run (the small-radius turn, magic-formula tire), "
         "scored from 8 s. Cost = |ln(NIS/3)| + |ln(NEES/3)|; the row in bold is the consistent choice.\n\n"
         + "\n\n".join(parts)
