@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -32,22 +32,20 @@ StiffnessState = Literal["k_tot", "log_k_s"]
 _LOG_KS_RANGE = (-math.log(100.0), math.log(100.0))
 
 
-def _check_common(
-    q_diag: tuple[float, ...],
-    r_diag: tuple[float, ...],
-    n: int,
-    p: int,
-    q_ktot_per_step: float,
-    ktot_step_dt: float,
-    ktot_noise_form: str,
-    discretisation: str,
-    ekf_jacobian: str,
-    ktot_min_frac: float,
-    ktot_max_frac: float,
-    stiffness_state: str,
-    q_log_ks_per_step: float,
-    log_ks_range: tuple[float, ...],
-) -> None:
+def _check_common(params: Any, positive: tuple[str, ...], n: int, p: int) -> None:
+    """The checks the 2-DOF and the LRV parameter sets share (``positive``: the names that must be > 0)."""
+    for name in positive:
+        value = getattr(params, name)
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be finite and > 0, got {value}")
+    if not (np.isfinite(params.c) and params.c >= 0):
+        raise ValueError(f"c must be finite and >= 0, got {params.c}")
+    q_diag, r_diag = tuple(params.q_diag), tuple(params.r_diag)
+    q_ktot_per_step, ktot_step_dt = params.q_ktot_per_step, params.ktot_step_dt
+    ktot_noise_form, discretisation, ekf_jacobian = params.ktot_noise_form, params.discretisation, params.ekf_jacobian
+    ktot_min_frac, ktot_max_frac = params.ktot_min_frac, params.ktot_max_frac
+    stiffness_state, q_log_ks_per_step = params.stiffness_state, params.q_log_ks_per_step
+    log_ks_range = tuple(params.log_ks_range)
     if len(q_diag) != n or any(not np.isfinite(q) or q < 0 for q in q_diag):
         raise ValueError(f"q_diag must hold {n} finite non-negative variances, got {q_diag}")
     if len(r_diag) != p or any(not np.isfinite(r) or r <= 0 for r in r_diag):
@@ -138,28 +136,7 @@ class QuarterCarParams:
     log_ks_range: tuple[float, float] = _LOG_KS_RANGE
 
     def __post_init__(self) -> None:
-        for name in ("m_s", "m_ns", "k", "k_t"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {value}")
-        if not (np.isfinite(self.c) and self.c >= 0):
-            raise ValueError(f"c must be finite and >= 0, got {self.c}")
-        _check_common(
-            tuple(self.q_diag),
-            tuple(self.r_diag),
-            5,
-            2,
-            self.q_ktot_per_step,
-            self.ktot_step_dt,
-            self.ktot_noise_form,
-            self.discretisation,
-            self.ekf_jacobian,
-            self.ktot_min_frac,
-            self.ktot_max_frac,
-            self.stiffness_state,
-            self.q_log_ks_per_step,
-            tuple(self.log_ks_range),
-        )
+        _check_common(self, ("m_s", "m_ns", "k", "k_t"), 5, 2)
 
     @property
     def k_series(self) -> float:
@@ -219,28 +196,7 @@ class LRVParams:
     log_ks_range: tuple[float, float] = _LOG_KS_RANGE
 
     def __post_init__(self) -> None:
-        for name in ("m_s", "k"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {value}")
-        if not (np.isfinite(self.c) and self.c >= 0):
-            raise ValueError(f"c must be finite and >= 0, got {self.c}")
-        _check_common(
-            tuple(self.q_diag),
-            tuple(self.r_diag),
-            3,
-            1,
-            self.q_ktot_per_step,
-            self.ktot_step_dt,
-            self.ktot_noise_form,
-            self.discretisation,
-            self.ekf_jacobian,
-            self.ktot_min_frac,
-            self.ktot_max_frac,
-            self.stiffness_state,
-            self.q_log_ks_per_step,
-            tuple(self.log_ks_range),
-        )
+        _check_common(self, ("m_s", "k"), 3, 1)
 
     @property
     def k_series(self) -> float:
