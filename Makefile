@@ -124,7 +124,7 @@ sim2real-screenshot: setup
 	$(PY) -m terrain_analysis.tools.sim2real $(SIM2REAL_BAG) --vehicle $(SIM2REAL_VEHICLE) -o out/sim2real_report -q; \
 		status=$$?; [ $$status -le 1 ] || exit $$status
 	$(PY) -m terrain_analysis.tools.sim2real_screenshot out/sim2real_report/diagnosis.html \
-		-o out/sim2real_report/screenshot.png
+		-o out/sim2real_report/screenshot.png --overwrite
 
 # The same with another seed: a second suite, drawn after the diagnosis was developed on the first.
 validate-sim2real-seed2027: setup

@@ -188,3 +188,23 @@ def test_the_screenshot_tool_without_chromium_says_how_to_get_it(
     err = capsys.readouterr().err
     assert "chromium not found" in err and "apt-get install chromium" in err
     assert not (tmp_path / "screenshot.png").exists()
+
+
+@pytest.mark.parametrize("target", ["screenshot.png", "diagnosis.html"])
+def test_the_screenshot_tool_never_replaces_a_file_without_overwrite(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], target: str
+) -> None:
+    """An existing file at ``-o`` (a user's, or the page itself) is refused and left as it was."""
+    page = tmp_path / "diagnosis.html"
+    page.write_text("<!DOCTYPE html><html><body><p>report</p></body></html>", encoding="utf-8")
+    existing = tmp_path / target
+    if target != page.name:
+        existing.write_bytes(b"somebody's file")
+    before = existing.read_bytes()
+    assert screenshot_main([str(page), "-o", str(existing)]) == 2
+    assert existing.read_bytes() == before
+    assert "exists" in capsys.readouterr().err or target == page.name
+    # the page is one of the run's inputs: refused with --overwrite too
+    if target == page.name:
+        assert screenshot_main([str(page), "-o", str(existing), "--overwrite"]) == 2
+        assert existing.read_bytes() == before

@@ -24,6 +24,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from terrain_estimation.cli import EXIT_OK, InputError, run_cli
+from terrain_estimation.outputs import check_output_path
 
 __all__ = ["BROWSERS", "find_browser", "main", "screenshot"]
 
@@ -62,6 +63,7 @@ def screenshot(
     width: int = 1280,
     height: int = 900,
     timeout: float = 120.0,
+    overwrite: bool = False,
 ) -> Path:
     """Render ``page`` headless in chromium and save a ``width`` × ``height`` PNG screenshot to ``out``.
 
@@ -72,11 +74,12 @@ def screenshot(
     source = Path(page).resolve()
     if not source.is_file():
         raise InputError(f"{page}: no such HTML page (write it with terrain-sim2real BAG --vehicle V -o DIR)")
+    # Before anything else: an existing file is replaced only with overwrite, and never the page itself.
+    target = check_output_path(Path(out).resolve(), overwrite=overwrite, inputs=[source], kind="file")
     exe = find_browser(browser)
-    target = Path(out).resolve()
     target.parent.mkdir(parents=True, exist_ok=True)
     if target.exists():
-        target.unlink()
+        target.unlink()  # a previous screenshot (a regular file), allowed by overwrite
     with tempfile.TemporaryDirectory(prefix="sim2real-chromium-") as profile:
         command = [
             exe,
@@ -112,6 +115,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--browser", help="chromium executable (default: chromium on PATH)")
     parser.add_argument("--width", type=int, default=1280, help="viewport width in CSS pixels (default 1280)")
     parser.add_argument("--height", type=int, default=900, help="viewport height in CSS pixels (default 900)")
+    parser.add_argument("--overwrite", action="store_true", help="replace a previous screenshot at --output")
     parser.add_argument("--check", action="store_true", help="only check that chromium is there (exit 2 if not)")
     args = parser.parse_args(argv)
 
@@ -122,7 +126,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not args.page:
             raise InputError("give the report's HTML page (DIR/diagnosis.html)")
         out = Path(args.output) if args.output else Path(args.page).with_name("screenshot.png")
-        path = screenshot(args.page, out, browser=args.browser, width=args.width, height=args.height)
+        path = screenshot(
+            args.page, out, browser=args.browser, width=args.width, height=args.height, overwrite=args.overwrite
+        )
         print(f"{PROG}: wrote {path} ({args.width} × {args.height})")
         return EXIT_OK
 
