@@ -48,6 +48,8 @@ from terrain_analysis.sim2real.where import (
     _nis_report,
     _regimes,
     despike,
+    regime_gaps,
+    time_windows,
 )
 
 __all__ = ["BUILDERS", "Diagnosis", "WhereTable", "build_model", "diagnose", "supported_vehicles", "where_table"]
@@ -158,13 +160,9 @@ def where_table(model: ReplayModel, prediction: Mapping[str, FloatArray], where:
             _channel(ch.name, ch.topic, meas, sim, fs, sigma[ch.name] ** 2, w, len(model.channels), ch.unit)
         )
         residuals[ch.name] = np.interp(t_ref, t[sel], despike(meas, sim, w)[0] - sim)
-    n_win = max(1, int(math.ceil((t_ref[-1] - start + 1e-9) / where.window))) if t_ref.size else 0
-    win = []
-    for i in range(n_win):
-        lo, hi = start + i * where.window, start + (i + 1) * where.window
-        win.append((f"{lo - t0:.1f}–{hi - t0:.1f} s", lo - t0, hi - t0, (t_ref >= lo) & (t_ref < hi)))
+    win = time_windows(t_ref, start, t0, where.window)
     noise_vars = {name: s**2 for name, s in sigma.items()}
-    windows = _regimes(win, residuals, noise_vars, where, len(residuals) * max(1, n_win))
+    windows = _regimes(win, residuals, noise_vars, where, len(residuals) * max(1, len(win)))
     regimes: dict[str, list[RegimeStat]] = {}
     for name, (t_var, values) in model.regimes.items():
         v = np.interp(t_ref, np.asarray(t_var, dtype=float), np.asarray(values, dtype=float))
@@ -182,14 +180,9 @@ def where_table(model: ReplayModel, prediction: Mapping[str, FloatArray], where:
             hi_v = float(np.max(v[sel])) if np.any(sel) else float(b)
             labels.append((f"{lo_v:.3g}…{hi_v:.3g}", lo_v, hi_v, sel))
         regimes[name] = _regimes(labels, residuals, noise_vars, where, len(residuals) * len(labels))
-    gaps = [g for ch in channels for g in ch.gaps]
-    bad = [w for w in windows if w.gap]
-    if bad and len(bad) < len(windows):
-        gaps += [f"window {w.label}: residual above noise on {', '.join(w.gap)}" for w in bad]
+    gaps = [g for ch in channels for g in ch.gaps] + regime_gaps("window ", windows)
     for name, rows in regimes.items():
-        bad = [r for r in rows if r.gap]
-        if bad and len(bad) < len(rows):
-            gaps += [f"{name} {r.label}: residual above noise on {', '.join(r.gap)}" for r in bad]
+        gaps += regime_gaps(f"{name} ", rows)
     return WhereTable(channels, windows, regimes, gaps)
 
 

@@ -22,9 +22,8 @@ attribution) is :func:`~terrain_analysis.sim2real.diagnose.diagnose`.
 
 from __future__ import annotations
 
-import math
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -45,8 +44,11 @@ from terrain_analysis.sim2real.where import (
     _nis_report,
     _regimes,
     despike,
+    regime_gaps,
+    time_windows,
 )
 from terrain_estimation.bag import read_bag
+from terrain_estimation.params import ParamValue
 from terrain_estimation.tools.estimate import estimate_bag, topic_name
 from terrain_estimation.vehicles import estimator_parameters, get_vehicle
 
@@ -111,6 +113,17 @@ class _BagData:
     profile_t: FloatArray
     profile_x: FloatArray
     profile_z: FloatArray
+
+
+def _open(
+    bag: str | Path, vehicle: str, namespace: str | None, config: str | Path | None, say: Callable[[str], None]
+) -> tuple[str, dict[str, ParamValue], _BagData]:
+    """The bag's namespace, the vehicle's estimator parameters and the bag's streams (quarter car or LRV)."""
+    entry = get_vehicle(vehicle)
+    ns = namespace if namespace is not None else entry.namespace
+    values = estimator_parameters(entry, config)
+    say(f"reading {bag} ({vehicle}, namespace {ns})")
+    return ns, values, _read(bag, ns, vehicle == "quarter_car", float(values["vehicle.wheel_radius"]))
 
 
 def _read(bag: str | Path, namespace: str, two_dof: bool, wheel_radius: float) -> _BagData:
@@ -266,18 +279,12 @@ def diagnose_where(
         if progress:
             print(f"sim2real: {text}", file=sys.stderr)
 
-    entry = get_vehicle(vehicle)
-    ns = namespace if namespace is not None else entry.namespace
-    values = estimator_parameters(entry, config)
+    ns, values, data = _open(bag, vehicle, namespace, config, say)
     two_dof = vehicle == "quarter_car"
-    radius = float(values["vehicle.wheel_radius"])
     gravity = float(values["estimator.gravity"])
     r_var = float(values["filter.accel_noise_variance"])
     sigma_h = float(values["estimator.profile_noise_std"])
     notes: list[str] = []
-
-    say(f"reading {bag} ({vehicle}, namespace {ns})")
-    data = _read(bag, ns, two_dof, radius)
 
     say("running the estimator over the bag (soil stiffness for the replay, NIS)")
     run = estimate_bag(bag, vehicle, namespace=ns, config=config)
@@ -379,15 +386,8 @@ def diagnose_where(
         for name in residuals
     }
     speed_ref = np.interp(t_ref, data.joint_t, data.speed)
-    t0 = float(t_ref[0])
-    n_win = max(1, int(math.ceil((t_ref[-1] - t0 + 1e-9) / settings.window)))
-    win_labels = []
-    for i in range(n_win):
-        lo, hi = t0 + i * settings.window, t0 + (i + 1) * settings.window
-        win_labels.append(
-            (f"{lo - grid[0]:.1f}–{hi - grid[0]:.1f} s", lo - grid[0], hi - grid[0], (t_ref >= lo) & (t_ref < hi))
-        )
-    n_tests = len(res_on_ref) * n_win
+    win_labels = time_windows(t_ref, float(t_ref[0]), grid[0], settings.window)
+    n_tests = len(res_on_ref) * len(win_labels)
     windows = _regimes(win_labels, res_on_ref, noise_vars, settings, n_tests)
     bins = np.floor(np.abs(speed_ref) / settings.speed_bin)
     speed_labels = []
@@ -397,12 +397,7 @@ def diagnose_where(
     speed_bins = _regimes(speed_labels, res_on_ref, noise_vars, settings, len(res_on_ref) * len(speed_labels))
 
     gaps = [g for ch in channels for g in ch.gaps]
-    bad_windows = [w for w in windows if w.gap]
-    if bad_windows and len(bad_windows) < len(windows):
-        gaps.extend(f"window {w.label}: residual above noise on {', '.join(w.gap)}" for w in bad_windows)
-    bad_speeds = [s for s in speed_bins if s.gap]
-    if bad_speeds and len(bad_speeds) < len(speed_bins):
-        gaps.extend(f"speed {s.label}: residual above noise on {', '.join(s.gap)}" for s in bad_speeds)
+    gaps += regime_gaps("window ", windows) + regime_gaps("speed ", speed_bins)
     if nis is not None and nis.updates:
         nis_probability = float(values["diagnostics.nis_probability"])
         if not nis.in_band:

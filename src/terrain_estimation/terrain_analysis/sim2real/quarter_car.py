@@ -77,11 +77,10 @@ from numpy.typing import NDArray
 from scipy import signal, stats
 
 from terrain_analysis.sim2real.model import Candidate, Channel, FitParameter, candidates_from_catalogue
-from terrain_analysis.sim2real.open_loop import _odd, _read, _savgol
+from terrain_analysis.sim2real.open_loop import _odd, _open, _savgol
 from terrain_analysis.sim2real.where import Sim2RealError
 from terrain_estimation.jit import compiled
 from terrain_estimation.tools.estimate import topic_name
-from terrain_estimation.vehicles import estimator_parameters, get_vehicle
 
 __all__ = ["QuarterCarReplay", "build_model"]
 
@@ -651,15 +650,10 @@ def build_model(
         if progress is not None:
             progress(text)
 
-    entry = get_vehicle(vehicle)
-    ns = namespace if namespace is not None else entry.namespace
-    values = estimator_parameters(entry, config)
+    ns, values, data = _open(bag, vehicle, namespace, config, say)
     two_dof = vehicle == "quarter_car"
-    radius = float(values["vehicle.wheel_radius"])
     r_var = float(values["filter.accel_noise_variance"])
     sigma_h = float(values["estimator.profile_noise_std"])
-    say(f"reading {bag} ({vehicle}, namespace {ns})")
-    data = _read(bag, ns, two_dof, radius)
     notes: list[str] = []
     if k_s is None:
         say("running the estimator over the bag (a starting soil stiffness for the replay)")

@@ -33,6 +33,8 @@ __all__ = [
     "Sim2RealError",
     "WhereSettings",
     "despike",
+    "regime_gaps",
+    "time_windows",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -394,6 +396,29 @@ def _regimes(
         gap = [ch for ch, v in rms.items() if v**2 / noise_vars[ch] > threshold]
         out.append(RegimeStat(label, lo, hi, n, rms, gap))
     return out
+
+
+def time_windows(
+    t_ref: FloatArray, start: float, origin: float, window: float
+) -> list[tuple[str, float, float, NDArray[np.bool_]]]:
+    """Consecutive windows of ``window`` s from ``start`` over the stamps ``t_ref``, for :func:`_regimes`.
+
+    Each is (label, from, to, mask of ``t_ref``), times relative to ``origin``.
+    """
+    n_win = max(1, int(math.ceil((t_ref[-1] - start + 1e-9) / window))) if t_ref.size else 0
+    out = []
+    for i in range(n_win):
+        lo, hi = start + i * window, start + (i + 1) * window
+        out.append((f"{lo - origin:.1f}–{hi - origin:.1f} s", lo - origin, hi - origin, (t_ref >= lo) & (t_ref < hi)))
+    return out
+
+
+def regime_gaps(prefix: str, rows: list[RegimeStat]) -> list[str]:
+    """A line per row whose residual is above the noise, if some rows are and some are not."""
+    bad = [r for r in rows if r.gap]
+    if bad and len(bad) < len(rows):
+        return [f"{prefix}{r.label}: residual above noise on {', '.join(r.gap)}" for r in bad]
+    return []
 
 
 def _nis_report(estimates: list[Any], dim: int, probability: float) -> NisReport | None:

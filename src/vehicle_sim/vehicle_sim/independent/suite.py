@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import hashlib
-import json
 import math
 import os
 import shutil
 import sys
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -21,6 +18,18 @@ import numpy as np
 from vehicle_sim.independent import messages as msgs
 from vehicle_sim.independent import quarter_car as qc
 from vehicle_sim.independent import skid_steer as ss
+from vehicle_sim.independent.blind_suite import (
+    check_request,
+    g4,
+    keep_some,
+    log_uniform,
+    map_jobs,
+    run_generator,
+    unique_id,
+    vehicle_rng,
+    worker_pool,
+    write_manifest_and_labels,
+)
 
 __all__ = [
     "EFFECTS",
@@ -135,30 +144,25 @@ class Plan:
 # ---------------------------------------------------------------------------
 
 
-def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
-    return float(math.exp(rng.uniform(math.log(low), math.log(high))))
-
-
 def _signed(rng: np.random.Generator, low: float, high: float) -> float:
-    value = _log_uniform(rng, low, high)
+    value = log_uniform(rng, low, high)
     return value if rng.random() < 0.5 else -value
 
 
 def _subset(rng: np.random.Generator, names: Sequence[str]) -> list[str]:
     """Each name kept with probability ½, at least one."""
-    keep = [n for n in names if rng.random() < 0.5]
-    return keep or [names[int(rng.integers(len(names)))]]
+    return [name for name, kept in zip(names, keep_some(rng, len(names)), strict=True) if kept]
 
 
 def _factor(rng: np.random.Generator, low: tuple[float, float], high: tuple[float, float]) -> float:
-    return _log_uniform(rng, *low) if rng.random() < 0.5 else _log_uniform(rng, *high)
+    return log_uniform(rng, *low) if rng.random() < 0.5 else log_uniform(rng, *high)
 
 
 def _draw_quarter_car(effect: str, rng: np.random.Generator) -> tuple[dict[str, float], dict[str, Any]]:
     """(parameters, structure) of a quarter-car effect; ranges in the package docstring."""
     if effect == "sensor_delay":
         stream = ("body", "wheel", "profile")[int(rng.integers(3))]
-        return {f"sensor_delay_{stream}": _log_uniform(rng, 0.01, 0.3)}, {}
+        return {f"sensor_delay_{stream}": log_uniform(rng, 0.01, 0.3)}, {}
     if effect in ("accel_bias", "accel_scale"):
         low, high = (0.1, 0.6) if effect == "accel_bias" else (0.03, 0.1)
         return {f"{effect}_{s}": _signed(rng, low, high) for s in _subset(rng, ("body", "wheel"))}, {}
@@ -169,9 +173,9 @@ def _draw_quarter_car(effect: str, rng: np.random.Generator) -> tuple[dict[str, 
     if effect == "sprung_mass_change":
         return {"sprung_mass_change": _signed(rng, 0.1, 0.3)}, {}
     if effect == "tire_damping":
-        return {"tire_damping": _log_uniform(rng, 300.0, 1500.0)}, {}
+        return {"tire_damping": log_uniform(rng, 300.0, 1500.0)}, {}
     if effect == "suspension_friction":
-        return {"suspension_friction": _log_uniform(rng, 50.0, 250.0)}, {}
+        return {"suspension_friction": log_uniform(rng, 50.0, 250.0)}, {}
     if effect == "tire_enveloping":
         return {"tire_contact_length": float(rng.uniform(0.1, 0.3))}, {}
     if effect == "wheel_liftoff":
@@ -181,7 +185,7 @@ def _draw_quarter_car(effect: str, rng: np.random.Generator) -> tuple[dict[str, 
 
 def _draw_skid_steer(effect: str, rng: np.random.Generator) -> tuple[dict[str, float], dict[str, Any]]:
     if effect in ("sensor_delay", "wheel_speed_delay"):
-        return {effect: _log_uniform(rng, 0.01, 0.3)}, {}
+        return {effect: log_uniform(rng, 0.01, 0.3)}, {}
     if effect in ("accel_bias", "accel_scale"):
         low, high = (0.1, 0.6) if effect == "accel_bias" else (0.03, 0.1)
         return {f"{effect}_{a}": _signed(rng, low, high) for a in _subset(rng, ("x", "y", "z"))}, {}
@@ -205,7 +209,7 @@ def _draw_skid_steer(effect: str, rng: np.random.Generator) -> tuple[dict[str, f
         return {"wheel_radius_error": _signed(rng, 0.03, 0.08)}, {}
     if effect == "turning_resistance":
         return {
-            "turning_resistance": _log_uniform(rng, 0.1, 0.5),
+            "turning_resistance": log_uniform(rng, 0.1, 0.5),
             "turning_resistance_speed": float(rng.uniform(0.02, 0.1)),
         }, {}
     raise ValueError(f"unknown skid-steer effect {effect!r}; known: {', '.join(EFFECTS['skid_steer'])}")
@@ -215,8 +219,8 @@ def _draw_structure(vehicle: str, rng: np.random.Generator) -> dict[str, Any]:
     if vehicle == "quarter_car":
         return {
             "soil_law": "zener",
-            "stiffness_ratio": _log_uniform(rng, 0.5, 2.0),
-            "relaxation_time": 1.0 / (2.0 * math.pi * _log_uniform(rng, 2.0, 10.0)),
+            "stiffness_ratio": log_uniform(rng, 0.5, 2.0),
+            "relaxation_time": 1.0 / (2.0 * math.pi * log_uniform(rng, 2.0, 10.0)),
             "description": STRUCTURE[vehicle],
         }
     return {"tire_law": "dugoff", "description": STRUCTURE[vehicle]}
@@ -231,7 +235,7 @@ def _draw_ooc(vehicle: str, name: str, rng: np.random.Generator) -> dict[str, An
         }
     if name == "accel_lowpass":
         low, high = (3.0, 10.0) if vehicle == "quarter_car" else (0.5, 2.0)
-        return {"cutoff_hz": _log_uniform(rng, low, high)}
+        return {"cutoff_hz": log_uniform(rng, low, high)}
     if name == "clock_drift":
         return {"rate_error": _signed(rng, 0.005, 0.02)}
     raise ValueError(f"unknown out-of-catalogue effect {name!r}; known: {', '.join(OUT_OF_CATALOGUE)}")
@@ -260,11 +264,6 @@ def _scenario(vehicle: str, rng: np.random.Generator, rough: bool) -> dict[str, 
     return {"manoeuvre": man, "rolling_resistance": round(float(rng.uniform(0.01, 0.04)), 4)}
 
 
-def _vehicle_rng(seed: int, vehicle: str) -> np.random.Generator:
-    tag = int.from_bytes(hashlib.sha256(f"independent/{vehicle}".encode()).digest()[:4], "little")
-    return np.random.default_rng([int(seed), tag])
-
-
 def plan_suite(
     seed: int,
     vehicles: Sequence[str] = VEHICLES,
@@ -284,21 +283,12 @@ def plan_suite(
             raise ValueError(f"{name} must be >= 0, got {n}")
     if n_ooc < 0:
         raise ValueError(f"out-of-catalogue must be >= 0, got {n_ooc}")
-    if duration is not None and not duration > 2.0:
-        raise ValueError(f"duration must be > 2 s, got {duration}")
-    for v in vehicles:
-        if v not in VEHICLES:
-            raise ValueError(f"unknown vehicle {v!r}; this generator has: {', '.join(VEHICLES)}")
-    if effects is not None:
-        known = {e for v in vehicles for e in EFFECTS[v]}
-        unknown = sorted(set(effects) - known)
-        if unknown:
-            raise ValueError(f"unknown effect(s) {unknown} for {list(vehicles)}; known: {sorted(known)}")
+    check_request(vehicles, VEHICLES, EFFECTS, effects, duration, shortest=2.0)
     plans: list[Plan] = []
     ids: set[str] = set()
     ooc_names = tuple(OUT_OF_CATALOGUE)
     for vehicle in vehicles:
-        rng = _vehicle_rng(seed, vehicle)
+        rng = vehicle_rng(seed, f"independent/{vehicle}")
         jobs: list[tuple[str, str | None, str | None]] = []
         for name in EFFECTS[vehicle]:
             if effects is None or name in effects:
@@ -307,10 +297,7 @@ def plan_suite(
         jobs += [("structure_control", None, None)] * n_struct
         jobs += [("out_of_catalogue", None, ooc_names[i % len(ooc_names)]) for i in range(n_ooc)]
         for kind, effect, ooc in jobs:
-            bag_id = rng.bytes(6).hex()
-            while bag_id in ids:
-                bag_id = rng.bytes(6).hex()
-            ids.add(bag_id)
+            bag_id = unique_id(rng, ids)
             lo, hi = DURATIONS[vehicle]
             length = float(duration) if duration is not None else round(float(rng.uniform(lo, hi)), 2)
             scenario = _scenario(vehicle, rng, rough=effect == "wheel_liftoff")
@@ -470,10 +457,6 @@ NOISE_SIGMA: dict[str, dict[str, float]] = {
 }
 
 
-def _g4(x: float) -> float:
-    return float(f"{x:.4g}")
-
-
 def signature(vehicle: str, bag: dict[str, Topic], twin: dict[str, Topic]) -> dict[str, Any]:
     """SNR of bag − twin over the response channels: sqrt(Σ (Δ/σ)²), σ the noise the generator added.
 
@@ -491,9 +474,9 @@ def signature(vehicle: str, bag: dict[str, Topic], twin: dict[str, Topic]) -> di
         z2 = float(np.sum((d / sigma) ** 2))
         total += z2
         samples += d.size
-        channels[name] = {"rms_over_sigma": _g4(math.sqrt(z2 / d.size)) if d.size else 0.0, "snr": _g4(math.sqrt(z2))}
+        channels[name] = {"rms_over_sigma": g4(math.sqrt(z2 / d.size)) if d.size else 0.0, "snr": g4(math.sqrt(z2))}
     most = max(channels, key=lambda c: channels[c]["snr"]) if total > 0.0 else None
-    return {"snr": _g4(math.sqrt(total)), "most_affected": most, "samples": samples, "channels": channels}
+    return {"snr": g4(math.sqrt(total)), "most_affected": most, "samples": samples, "channels": channels}
 
 
 def _relative_shift(plan: Plan) -> Callable[[np.ndarray], np.ndarray] | None:
@@ -628,12 +611,6 @@ def _prepare(out: Path) -> Path:
     return out
 
 
-def _write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(f".{path.name}.partial")
-    tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
-    tmp.replace(path)
-
-
 def generate(
     out: str | Path,
     plans: Sequence[Plan],
@@ -660,18 +637,12 @@ def generate(
             )
 
     work = [(p, str(root), signatures) for p in plans]
-    if jobs <= 1:
-        for i, (plan, args) in enumerate(zip(plans, work, strict=True), 1):
-            report(i, plan, _job(args))
-    else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            for i, (plan, result) in enumerate(zip(plans, pool.map(_job, work), strict=True), 1):
-                report(i, plan, result)
-    ordered = sorted(plans, key=lambda p: p.id)
-    manifest = {
+    with worker_pool(jobs) as pool:
+        for i, (plan, result) in enumerate(zip(plans, map_jobs(_job, work, pool), strict=True), 1):
+            report(i, plan, result)
+    manifest: dict[str, Any] = {
         "note": "What the diagnosis is given: bag id -> vehicle and bag path. Labels are withheld.",
         "generator": _TOOL,
-        "bags": [{"id": p.id, "vehicle": p.vehicle, "bag": p.path} for p in ordered],
     }
     labels: dict[str, Any] = {
         "note": (
@@ -679,13 +650,7 @@ def generate(
             "The sim-to-real diagnosis must NEVER read this file."
         ),
         "generator": _TOOL,
-        "labels": {},
     }
-    for p in ordered:
-        label = p.label()
-        if "signature" in results[p.id]:
-            label["signature"] = results[p.id]["signature"]
-        labels["labels"][p.id] = label
     if signatures:
         labels["signature"] = {
             "definition": (
@@ -695,8 +660,7 @@ def generate(
             ),
             "noise_sigma": {v: NOISE_SIGMA[v] for v in sorted({p.vehicle for p in plans})},
         }
-    _write_json(root / "manifest.json", manifest)
-    _write_json(root / "labels.json", labels)
+    write_manifest_and_labels(root, plans, results, manifest, labels)
     return {"bags": total, "seconds": time.monotonic() - started}
 
 
@@ -723,8 +687,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     vehicles = tuple(dict.fromkeys(args.vehicle)) if args.vehicle else VEHICLES
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    try:
-        plans = plan_suite(
+    return run_generator(
+        "independent",
+        args.out,
+        vehicles,
+        lambda: plan_suite(
             args.seed,
             vehicles,
             per_effect=args.per_effect,
@@ -733,25 +700,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             out_of_catalogue=args.out_of_catalogue,
             effects=args.effect,
             duration=args.duration,
-        )
-        if not plans:
-            raise ValueError("nothing to generate (all counts are 0)")
-        print(f"independent: generating {len(plans)} bags for {', '.join(vehicles)} in {args.out}", file=sys.stderr)
-        summary = generate(
+        ),
+        lambda plans: generate(
             args.out,
             plans,
             jobs=max(1, args.jobs),
             signatures=not args.no_signature,
             progress=lambda line: print(line, file=sys.stderr, flush=True),
-        )
-    except (ValueError, OSError, FloatingPointError) as exc:
-        print(f"independent: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("independent: interrupted; the suite is incomplete", file=sys.stderr)
-        return 130
-    print(
-        f"wrote {summary['bags']} bags in {summary['seconds']:.1f} s to {args.out} "
-        "(manifest.json for the diagnosis, labels.json for the scorer only)"
+        ),
+        (ValueError, OSError, FloatingPointError),
     )
-    return 0

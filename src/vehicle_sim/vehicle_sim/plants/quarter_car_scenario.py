@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from terrain_estimation.checks import check_fields
 from vehicle_sim.plants.quarter_car_effects import QuarterCarEffects
 from vehicle_sim.plants.quarter_car_vehicles import STANDARD_GRAVITY, Vehicle
 from vehicle_sim.plants.stepping import SensorTiming
@@ -159,15 +160,8 @@ class Scenario(SensorTiming):
             object.__setattr__(self, "soil_path", SoilPath(self.soil_path))
         if not isinstance(self.speed, SpeedProfile):
             object.__setattr__(self, "speed", SpeedProfile.constant(float(self.speed)))
-        for name in ("sensor_rate", "profile_rate", "integration_step"):
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        if not self.accel_noise_variance >= 0.0:
-            raise ValueError(f"accel_noise_variance must be ≥ 0, got {self.accel_noise_variance}")
-        if not self.profile_noise_std >= 0.0:
-            raise ValueError(f"profile_noise_std must be ≥ 0, got {self.profile_noise_std}")
-        if not self.gravity >= 0.0:
-            raise ValueError(f"gravity must be ≥ 0, got {self.gravity}")
+        check_fields(self, ("sensor_rate", "profile_rate", "integration_step"))
+        check_fields(self, ("accel_noise_variance", "profile_noise_std", "gravity"), rule="non_negative")
 
 
 # ---------------------------------------------------------------------------

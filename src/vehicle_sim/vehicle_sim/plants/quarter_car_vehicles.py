@@ -12,6 +12,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from terrain_estimation.checks import check_fields
 from vehicle_sim.terrain.soils import k_tot
 
 __all__ = ["STANDARD_GRAVITY", "LRVVehicle", "QuarterCarVehicle", "Vehicle"]
@@ -47,13 +48,9 @@ class QuarterCarVehicle:
     wheel_radius: float = 0.3885
 
     def __post_init__(self) -> None:
-        for name in ("sprung_mass", "unsprung_mass", "suspension_stiffness", "tire_stiffness"):
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        if not self.suspension_damping >= 0.0:
-            raise ValueError(f"suspension_damping must be ≥ 0, got {self.suspension_damping}")
-        if not self.wheel_radius > 0.0:
-            raise ValueError(f"wheel_radius must be > 0 m, got {self.wheel_radius}")
+        check_fields(self, ("sprung_mass", "unsprung_mass", "suspension_stiffness", "tire_stiffness"))
+        check_fields(self, ("suspension_damping",), rule="non_negative")
+        check_fields(self, ("wheel_radius",))
 
     @property
     def series_stiffness(self) -> float:
@@ -136,11 +133,8 @@ class LRVVehicle:
     damper_reference: Literal["ground", "inertial"] = "ground"
 
     def __post_init__(self) -> None:
-        for name in ("sprung_mass", "combined_stiffness", "wheel_radius"):
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        if not self.damping >= 0.0:
-            raise ValueError(f"damping must be ≥ 0, got {self.damping}")
+        check_fields(self, ("sprung_mass", "combined_stiffness", "wheel_radius"))
+        check_fields(self, ("damping",), rule="non_negative")
         if self.damper_reference not in ("ground", "inertial"):
             raise ValueError(f"damper_reference must be 'ground' or 'inertial', got {self.damper_reference!r}")
 

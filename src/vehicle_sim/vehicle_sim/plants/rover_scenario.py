@@ -8,7 +8,7 @@ describes the physics each field refers to).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, Literal
 
 import numpy as np
@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from terrain_estimation.models.rover import RoverParams
 from vehicle_sim.plants.checks import (
     changed_fields,
+    check_fields,
     check_float_finite,
     check_float_non_negative,
     check_float_positive,
@@ -58,8 +59,8 @@ class RoverController:
     max_torque: float = 10.0
 
     def __post_init__(self) -> None:
-        for name in ("proportional_gain", "integral_gain", "derivative_gain"):
-            check_float_non_negative("RoverController", name, getattr(self, name))
+        gains = ("proportional_gain", "integral_gain", "derivative_gain")
+        check_fields(self, gains, rule="non_negative", strict_types=True)
         check_float_positive("RoverController", "max_torque", self.max_torque)
 
 
@@ -88,15 +89,8 @@ class RoverSensorNoise:
     quantise: bool = False
 
     def __post_init__(self) -> None:
-        for name in (
-            "bogie_angle_std",
-            "pitch_rate_std",
-            "forward_velocity_std",
-            "acceleration_std",
-            "wheel_angle_std",
-            "load_cell_std",
-        ):
-            check_float_non_negative("RoverSensorNoise", name, getattr(self, name))
+        noise = (f.name for f in fields(self) if f.name.endswith("_std"))
+        check_fields(self, noise, rule="non_negative", strict_types=True)
 
     @classmethod
     def noiseless(cls) -> RoverSensorNoise:

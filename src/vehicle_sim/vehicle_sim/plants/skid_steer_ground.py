@@ -84,6 +84,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from terrain_estimation.checks import check_positive
 from terrain_estimation.jit import compiled
 
 __all__ = [
@@ -202,8 +203,7 @@ class SkidSteerGround:
             if not isinstance(patch, TerrainPatch):
                 raise ValueError(f"{owner}.patches must hold TerrainPatch objects, got {patch!r}")
         object.__setattr__(self, "patches", patches)
-        if not (math.isfinite(self.transition) and self.transition > 0.0):
-            raise ValueError(f"{owner}.transition must be finite and > 0, got {self.transition}")
+        check_positive(owner, "transition", self.transition)
 
     @property
     def level(self) -> bool:

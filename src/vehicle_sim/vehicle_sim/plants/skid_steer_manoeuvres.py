@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vehicle_sim.plants.checks import check_finite, check_non_negative, check_positive
+from vehicle_sim.plants.checks import check_fields, check_finite, check_positive
 from vehicle_sim.plants.skid_steer_ground import SkidSteerGround
 from vehicle_sim.plants.skid_steer_vehicle import SkidSteerEffects, SkidSteerSensors, SkidSteerVehicle
 from vehicle_sim.plants.stepping import SensorTiming
@@ -76,8 +76,7 @@ class SkidSteerDriver:
     wheel_speed_integral_gain: float = 10.0e3
 
     def __post_init__(self) -> None:
-        for name in self.__dataclass_fields__:
-            check_non_negative("SkidSteerDriver", name, getattr(self, name))
+        check_fields(self, rule="non_negative")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -9,11 +9,19 @@ beyond the observer's model), its equations of motion
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
+from terrain_estimation.checks import (
+    check_fields,
+    check_finite,
+    check_int_at_least,
+    check_non_negative,
+    check_positive,
+    finite_tuple,
+)
 from terrain_estimation.models.skid_steer import SkidSteerParams
-from vehicle_sim.plants.checks import changed_fields, check_finite, check_non_negative, check_positive, without_noise
+from vehicle_sim.plants.checks import changed_fields, without_noise
 from vehicle_sim.plants.tire_laws import TIRE_LAWS, MagicFormulaTire
 
 __all__ = ["TURNING_RESISTANCE_SPEED", "SkidSteerEffects", "SkidSteerSensors", "SkidSteerVehicle"]
@@ -348,10 +356,7 @@ class SkidSteerEffects:
     def __post_init__(self) -> None:
         owner = "SkidSteerEffects"
         for name, size in (("gyro_bias_xy", 2), ("accel_scale", 3), ("terrain_slope", 2)):
-            values = tuple(float(v) for v in getattr(self, name))
-            if len(values) != size or not all(math.isfinite(v) for v in values):
-                raise ValueError(f"{owner}.{name} must be {size} finite values, got {getattr(self, name)}")
-            object.__setattr__(self, name, values)
+            object.__setattr__(self, name, finite_tuple(owner, name, getattr(self, name), size))
         if not all(-1.0 < v < 1.0 for v in self.accel_scale):
             raise ValueError(f"{owner}.accel_scale must lie in (−1, 1) per axis, got {self.accel_scale}")
         if not (math.isfinite(self.gyro_scale) and -1.0 < self.gyro_scale < 1.0):
@@ -360,10 +365,7 @@ class SkidSteerEffects:
         check_non_negative(owner, "turning_resistance", self.turning_resistance)
         if not all(abs(v) < math.pi / 4.0 for v in self.terrain_slope):
             raise ValueError(f"{owner}.terrain_slope must be in (−π/4, π/4) rad per axis, got {self.terrain_slope}")
-        bias = tuple(float(b) for b in self.accel_bias)
-        if len(bias) != 3 or not all(math.isfinite(b) for b in bias):
-            raise ValueError(f"{owner}.accel_bias must be 3 finite values (x, y, z), got {self.accel_bias}")
-        object.__setattr__(self, "accel_bias", bias)
+        object.__setattr__(self, "accel_bias", finite_tuple(owner, "accel_bias", self.accel_bias, 3))
         check_finite(owner, "gyro_bias", self.gyro_bias)
         check_non_negative(owner, "sensor_delay", self.sensor_delay)
         e = self.wheel_radius_error
@@ -437,21 +439,9 @@ class SkidSteerSensors:
     gnss_yaw_noise_std: float = 0.005
 
     def __post_init__(self) -> None:
-        owner = "SkidSteerSensors"
-        for name in (
-            "accel_noise_std",
-            "gyro_noise_std",
-            "motor_velocity_noise_std",
-            "motor_effort_noise_std",
-            "gnss_rate",
-            "gnss_velocity_noise_std",
-            "gnss_position_noise_std",
-            "gnss_yaw_noise_std",
-        ):
-            check_non_negative(owner, name, getattr(self, name))
-        counts = self.encoder_counts_per_revolution
-        if isinstance(counts, bool) or not isinstance(counts, int) or counts < 1:
-            raise ValueError(f"{owner}.encoder_counts_per_revolution must be an integer ≥ 1, got {counts}")
+        counts = "encoder_counts_per_revolution"
+        check_fields(self, (f.name for f in fields(self) if f.name != counts), rule="non_negative")
+        check_int_at_least("SkidSteerSensors", counts, self.encoder_counts_per_revolution, 1)
 
     @classmethod
     def noiseless(cls) -> SkidSteerSensors:

@@ -76,6 +76,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from terrain_estimation.checks import check_fields
 from terrain_estimation.jit import compiled
 
 __all__ = [
@@ -173,10 +174,7 @@ class MagicFormulaTire:
             value = getattr(self, name)
             if not (math.isfinite(value) and -10.0 < value < 1.0):
                 raise ValueError(f"{owner}.{name} must be in (−10, 1), got {value}")
-        for name in ("cornering_stiffness_peak_load", "low_speed"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{owner}.{name} must be finite and > 0, got {value}")
+        check_fields(self, ("cornering_stiffness_peak_load", "low_speed"))
         exponent = self.longitudinal_stiffness_load_exponent
         if not (math.isfinite(exponent) and abs(exponent) <= 5.0):
             raise ValueError(f"{owner}.longitudinal_stiffness_load_exponent must be in [−5, 5], got {exponent}")

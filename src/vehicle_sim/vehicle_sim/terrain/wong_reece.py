@@ -67,6 +67,8 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from terrain_estimation.checks import check_fields
+
 Array = NDArray[np.float64]
 
 __all__ = [
@@ -149,14 +151,8 @@ class WongReeceSoil:
     max_stress_angle_c2: float = 0.32
 
     def __post_init__(self) -> None:
-        for name in ("sinkage_exponent", "shear_deformation_modulus"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"WongReeceSoil.{name} must be finite and > 0, got {value}")
-        for name in ("cohesion", "pressure_sinkage_k1", "pressure_sinkage_k2"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"WongReeceSoil.{name} must be finite and ≥ 0, got {value}")
+        check_fields(self, ("sinkage_exponent", "shear_deformation_modulus"))
+        check_fields(self, ("cohesion", "pressure_sinkage_k1", "pressure_sinkage_k2"), rule="non_negative")
         if not (0.0 <= self.friction_angle < _HALF_PI):
             raise ValueError(f"WongReeceSoil.friction_angle must be in [0, π/2) rad, got {self.friction_angle}")
         c1, c2 = self.max_stress_angle_c1, self.max_stress_angle_c2
@@ -199,10 +195,7 @@ class RigidWheel:
     width: float = 0.070
 
     def __post_init__(self) -> None:
-        for name in ("radius", "width"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"RigidWheel.{name} must be finite and > 0 m, got {value}")
+        check_fields(self)
 
 
 TABLE_II_SOIL = WongReeceSoil()

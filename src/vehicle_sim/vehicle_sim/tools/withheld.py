@@ -156,14 +156,12 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import math
 import os
 import shutil
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -177,6 +175,7 @@ from terrain_estimation.params import ParameterError
 from terrain_estimation.ros.time import ns_to_stamp, stamp_to_ns
 from terrain_estimation.tools.estimate import topic_name
 from vehicle_sim.effects import effects_for
+from vehicle_sim.independent.blind_suite import g4, map_jobs, run_generator, worker_pool, write_manifest_and_labels
 from vehicle_sim.ros.registry import get_simulator, simulator_parameters
 from vehicle_sim.tools.withheld_plan import (
     _SCALE_CHANNEL,
@@ -188,7 +187,7 @@ from vehicle_sim.tools.withheld_plan import (
     draw_parameter,
     plan_suite,
 )
-from vehicle_sim.tools.withheld_signature import RESPONSE_TOPICS, Series, _g4, _Recorder, signature
+from vehicle_sim.tools.withheld_signature import RESPONSE_TOPICS, Series, _Recorder, signature
 
 __all__ = [
     "RESPONSE_TOPICS",
@@ -521,12 +520,6 @@ def _sigma_job(vehicle: str) -> dict[str, float]:
     return noise_sigma(vehicle)
 
 
-def _write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(f".{path.name}.partial")
-    tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
-    tmp.replace(path)
-
-
 def generate(
     out: str | Path,
     plans: Sequence[BagPlan],
@@ -580,41 +573,25 @@ def generate(
             )
 
     sigmas: dict[str, dict[str, float]] = {}
-    if jobs <= 1:
-        for vehicle in vehicles:
+    with worker_pool(jobs) as pool:
+        t0 = time.monotonic()
+        for vehicle, sigma in zip(vehicles, map_jobs(_sigma_job, vehicles, pool), strict=True):
+            sigmas[vehicle] = sigma
+            report_sigma(vehicle, sigma, time.monotonic() - t0)
             t0 = time.monotonic()
-            sigmas[vehicle] = noise_sigma(vehicle)
-            report_sigma(vehicle, sigmas[vehicle], time.monotonic() - t0)
-        for i, plan in enumerate(plans, 1):
-            report(i, plan, write_bag(plan, root, sigmas.get(plan.vehicle)))
-    else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            t0 = time.monotonic()
-            for vehicle, sigma in zip(vehicles, pool.map(_sigma_job, vehicles), strict=True):
-                sigmas[vehicle] = sigma
-                report_sigma(vehicle, sigma, time.monotonic() - t0)
-            work = [(p, str(root), sigmas.get(p.vehicle)) for p in plans]
-            for i, (plan, result) in enumerate(zip(plans, pool.map(_write_job, work), strict=True), 1):
-                report(i, plan, result)
-    manifest = {
-        "note": _NOTE_MANIFEST,
-        "bags": [{"id": p.id, "vehicle": p.vehicle, "bag": p.path} for p in sorted(plans, key=lambda p: p.id)],
-    }
-    labels: dict[str, Any] = {"note": _NOTE_LABELS, "labels": {}}
-    for p in sorted(plans, key=lambda p: p.id):
-        label = p.label()
-        if "signature" in results[p.id]:
-            label["signature"] = results[p.id]["signature"]
-        labels["labels"][p.id] = label
+        work = [(p, str(root), sigmas.get(p.vehicle)) for p in plans]
+        for i, (plan, result) in enumerate(zip(plans, map_jobs(_write_job, work, pool), strict=True), 1):
+            report(i, plan, result)
+    manifest: dict[str, Any] = {"note": _NOTE_MANIFEST}
+    labels: dict[str, Any] = {"note": _NOTE_LABELS}
     if sigmas:
         labels["signature"] = {
             "definition": _NOTE_SIGNATURE,
             "sigma_runs": {"duration": SIGMA_DURATION, "seeds": list(SIGMA_SEEDS)},
-            "noise_sigma": {v: {c: _g4(s) for c, s in sigma.items()} for v, sigma in sigmas.items()},
+            "noise_sigma": {v: {c: g4(s) for c, s in sigma.items()} for v, sigma in sigmas.items()},
             "response_topics": {v: list(RESPONSE_TOPICS.get(v, ())) for v in sigmas},
         }
-    _write_json(root / "manifest.json", manifest)
-    _write_json(root / "labels.json", labels)
+    write_manifest_and_labels(root, plans, results, manifest, labels)
     return {"bags": total, "seconds": time.monotonic() - started}
 
 
@@ -650,8 +627,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     vehicles = tuple(dict.fromkeys(args.vehicle)) if args.vehicle else VEHICLES
-    try:
-        plans = plan_suite(
+    return run_generator(
+        "withheld",
+        args.out,
+        vehicles,
+        lambda: plan_suite(
             args.seed,
             vehicles,
             per_effect=args.per_effect,
@@ -660,22 +640,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             duration=args.duration,
             effects=args.effect,
             rough_controls=args.rough_controls,
-        )
-        if not plans:
-            raise ValueError("nothing to generate (all counts are 0)")
-        print(f"withheld: generating {len(plans)} bags for {', '.join(vehicles)} in {args.out}", file=sys.stderr)
-        summary = generate(args.out, plans, jobs=max(1, args.jobs), signatures=not args.no_signature)
-    except (BagError, ParameterError, ValueError, OSError) as exc:
-        print(f"withheld: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("withheld: interrupted; the suite is incomplete", file=sys.stderr)
-        return 130
-    print(
-        f"wrote {summary['bags']} bags in {summary['seconds']:.1f} s to {args.out} "
-        f"(manifest.json for the diagnosis, labels.json for the scorer only)"
+        ),
+        lambda plans: generate(args.out, plans, jobs=max(1, args.jobs), signatures=not args.no_signature),
+        (BagError, ParameterError, ValueError, OSError),
     )
-    return 0
 
 
 if __name__ == "__main__":

@@ -6,7 +6,6 @@ of :mod:`vehicle_sim.tools.withheld`'s docstring, which writes the bags.
 
 from __future__ import annotations
 
-import hashlib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -15,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from vehicle_sim.effects import CATALOGUE, EffectParameter
+from vehicle_sim.independent.blind_suite import check_request, keep_some, log_uniform, unique_id, vehicle_rng
 from vehicle_sim.ros.registry import get_simulator, simulator_parameters
 
 __all__ = [
@@ -148,11 +148,6 @@ class BagPlan:
         }
 
 
-def _vehicle_rng(seed: int, vehicle: str) -> np.random.Generator:
-    tag = int.from_bytes(hashlib.sha256(vehicle.encode()).digest()[:4], "little")
-    return np.random.default_rng([int(seed), tag])
-
-
 def _scenario(vehicle: str, rng: np.random.Generator, rough: bool = False) -> dict[str, Any]:
     if vehicle in ("quarter_car", "lrv"):
         soils = _SOILS[vehicle]
@@ -206,10 +201,6 @@ _QUARTER_CAR_SOIL_SOFTENING = (0.2, 0.6)
 _QUARTER_CAR_SOIL_ORIGIN = (0.3, 3.0)
 
 
-def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
-    return float(math.exp(rng.uniform(math.log(low), math.log(high))))
-
-
 def _quarter_car_draw(
     vehicle: str, effect: str, values: dict[str, float], rules: dict[str, dict[str, Any]], rng: np.random.Generator
 ) -> None:
@@ -232,23 +223,20 @@ def _quarter_car_draw(
         for name in values:
             values[name] = 0.0
             rules[name] = {"rule": "off (another stream is late)"}
-        values[late] = _log_uniform(rng, *_QUARTER_CAR_DELAY_RANGE)
+        values[late] = log_uniform(rng, *_QUARTER_CAR_DELAY_RANGE)
         rules[late] = {"rule": "single_stream", "range": list(_QUARTER_CAR_DELAY_RANGE)}
     elif effect in ("accel_bias", "accel_scale") and len(values) > 1:
         names = list(values)
-        keep = [bool(rng.random() < 0.5) for _ in names]
-        if not any(keep):
-            keep[int(rng.integers(len(names)))] = True
-        for name, kept in zip(names, keep, strict=True):
+        for name, kept in zip(names, keep_some(rng, len(names)), strict=True):
             if not kept:
                 values[name] = 0.0
                 rules[name] = {"rule": "off (one sensor)"}
     elif effect == "nonlinear_soil":
         stiffening = bool(rng.random() < 0.5)
         span = _QUARTER_CAR_SOIL_STIFFENING if stiffening else _QUARTER_CAR_SOIL_SOFTENING
-        values["soil_exponent"] = 1.0 + (1.0 if stiffening else -1.0) * _log_uniform(rng, *span)
+        values["soil_exponent"] = 1.0 + (1.0 if stiffening else -1.0) * log_uniform(rng, *span)
         rules["soil_exponent"] = {"rule": "stiffening" if stiffening else "softening", "range": list(span)}
-        values["soil_origin_ratio"] = _log_uniform(rng, *_QUARTER_CAR_SOIL_ORIGIN)
+        values["soil_origin_ratio"] = log_uniform(rng, *_QUARTER_CAR_SOIL_ORIGIN)
         rules["soil_origin_ratio"] = {"rule": "shape", "range": list(_QUARTER_CAR_SOIL_ORIGIN)}
 
 
@@ -275,17 +263,14 @@ def _skid_steer_draw(
     parameters = {p.name: p for p in CATALOGUE["skid_steer"][effect].parameters}
     if effect in _SKID_STEER_PER_AXIS and len(parameters) > 1:
         names = list(parameters)
-        keep = [bool(rng.random() < 0.5) for _ in names]
-        if not any(keep):
-            keep[int(rng.integers(len(names)))] = True
-        for name, on in zip(names, keep, strict=True):
-            if not on:
+        for name, kept in zip(names, keep_some(rng, len(names)), strict=True):
+            if not kept:
                 values[name] = parameters[name].off
                 rules[name] = {"rule": "off (one sensor)"}
     if effect in _SKID_STEER_DELAYS:
         for name, p in parameters.items():
             low, high = abs(p.typical - p.off), p.plausible_range[1] - p.off
-            values[name] = p.off + float(math.exp(rng.uniform(math.log(low), math.log(high))))
+            values[name] = p.off + log_uniform(rng, low, high)
             rules[name] = {"rule": "single_stream", "range": [p.off + low, p.off + high]}
 
 
@@ -348,21 +333,12 @@ def plan_suite(
             f"controls, out-of-catalogue and rough-road control counts must be >= 0, "
             f"got {n_controls}, {n_ooc}, {n_rough}"
         )
-    if duration is not None and not duration > 0:
-        raise ValueError(f"duration must be > 0 s, got {duration}")
-    for v in vehicles:
-        if v not in VEHICLES:
-            raise ValueError(f"unknown vehicle {v!r}; known: {', '.join(VEHICLES)}")
-    if effects is not None:
-        known = {name for v in vehicles for name in CATALOGUE[v]}
-        unknown = sorted(set(effects) - known)
-        if unknown:
-            raise ValueError(f"unknown effect(s) {unknown} for vehicles {list(vehicles)}; known: {sorted(known)}")
+    check_request(vehicles, VEHICLES, CATALOGUE, effects, duration, shortest=0.0)
     plans: list[BagPlan] = []
     ids: set[str] = set()
     ooc_names = tuple(OUT_OF_CATALOGUE)
     for vehicle in vehicles:
-        rng = _vehicle_rng(seed, vehicle)
+        rng = vehicle_rng(seed, vehicle)
         desired_speed = 0.02
         if vehicle == "rover":
             entry = get_simulator("rover")
@@ -376,10 +352,7 @@ def plan_suite(
         if vehicle in _SOILS:
             jobs += [("control", None, None, True)] * n_rough
         for kind, effect, ooc, rough in jobs:
-            bag_id = rng.bytes(6).hex()
-            while bag_id in ids:
-                bag_id = rng.bytes(6).hex()
-            ids.add(bag_id)
+            bag_id = unique_id(rng, ids)
             lo, hi = DURATIONS[vehicle]
             length = float(duration) if duration is not None else round(float(rng.uniform(lo, hi)), 2)
             scenario = _scenario(vehicle, rng, rough)

@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from vehicle_sim.independent.blind_suite import g4
+
 __all__ = ["RESPONSE_TOPICS", "Series", "signature"]
 
 _NUMERIC_TYPES = frozenset(
@@ -123,10 +125,6 @@ class _Recorder:
         return out
 
 
-def _g4(x: float) -> float:
-    return float(f"{x:.4g}")
-
-
 #: Per vehicle, the topics whose channels count in the signature's ``snr``: the vehicle's
 #: *responses*. Left out are the inputs every replay of the vehicle is driven by (the
 #: measured road profile; the drive's commands and encoders in joint_states) and the GNSS
@@ -169,7 +167,7 @@ def signature(
             raise ValueError(f"no noise sigma for channel {name!r}")
         if not s > 0.0:
             if d.size and np.any(d != 0.0):
-                noise_free[name] = _g4(float(np.max(np.abs(d))))
+                noise_free[name] = g4(float(np.max(np.abs(d))))
             continue
         z2 = float(np.sum((d / s) ** 2))
         counted = response is None or _topic_of(name) in response
@@ -178,15 +176,15 @@ def signature(
             total += z2
             samples += d.size
         channels[name] = {
-            "rms_over_sigma": _g4(math.sqrt(z2 / d.size)) if d.size else 0.0,
-            "snr": _g4(math.sqrt(z2)),
+            "rms_over_sigma": g4(math.sqrt(z2 / d.size)) if d.size else 0.0,
+            "snr": g4(math.sqrt(z2)),
             "in_snr": counted,
         }
     counted_names = [c for c in channels if channels[c]["in_snr"]]
     most = max(counted_names, key=lambda c: channels[c]["snr"]) if total > 0.0 else None
     return {
-        "snr": _g4(math.sqrt(total)),
-        "snr_all": _g4(math.sqrt(total_all)),
+        "snr": g4(math.sqrt(total)),
+        "snr_all": g4(math.sqrt(total_all)),
         "most_affected": most,
         "samples": samples,
         "channels": channels,
