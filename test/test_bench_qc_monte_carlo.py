@@ -14,12 +14,12 @@ import pytest
 
 pytest.importorskip("vehicle_sim")
 
-from terrain_analysis.tools import bench  # noqa: E402
+from terrain_analysis.tools import bench, bench_quarter_car  # noqa: E402
 
 
 @pytest.mark.parametrize("vehicle", ["quarter_car", "lrv"])
 def test_core_rows_time_the_compiled_step_and_label_the_numpy_path(vehicle: str) -> None:
-    drive = bench._drive_quarter_car if vehicle == "quarter_car" else bench._drive_lrv
+    drive = bench_quarter_car.drive_quarter_car if vehicle == "quarter_car" else bench_quarter_car.drive_lrv
     result = drive(1.0, 3)
     node = bench.bench_core(vehicle, result)
     reference = bench.bench_core(vehicle, result, numpy_path=True)

@@ -47,9 +47,7 @@ its ``main``::
         sections=(case1, case2, ...), write=write_report,
     )
 
-    @cli_main("reproduce-qc")
-    def main(argv=None) -> int:
-        return run_reproduction(REPRODUCTION, argv, __doc__)
+    main = reproduction_main(REPRODUCTION, "reproduce-qc", __doc__)
 """
 
 from __future__ import annotations
@@ -63,8 +61,17 @@ from typing import Any, TypeVar
 
 from terrain_analysis.batch.engine import Engine, Progress, Task, TaskResult, run_isolated
 from terrain_analysis.reporting import Provenance, Report, claims_table, reproduction_arguments
+from terrain_estimation.cli import Main, cli_main
 
-__all__ = ["ExperimentError", "Reproduction", "Runner", "run_plan", "run_reproduction"]
+__all__ = [
+    "ExperimentError",
+    "Reproduction",
+    "Runner",
+    "print_claims",
+    "reproduction_main",
+    "run_plan",
+    "run_reproduction",
+]
 
 S = TypeVar("S")
 R = TypeVar("R")
@@ -252,19 +259,32 @@ def run_reproduction(spec: Reproduction, argv: Sequence[str] | None, doc: str | 
     counts = spec.counts.quick() if args.quick else spec.counts()
     if args.runs is not None:
         counts = counts.with_runs(args.runs)
-    out_dir = Path(args.out)
-    fig_dir = out_dir / spec.page
-    fig_dir.mkdir(parents=True, exist_ok=True)
+    rep = Report.for_page(args.out, spec.page)
     plan = spec.plan(counts)
     name = spec.module.rpartition(".")[2]
     print(f"{name}: {len(plan)} {spec.what} on {args.jobs} process(es)", file=sys.stderr, flush=True)
-    rep = Report(out=out_dir / f"{spec.page}.md", fig_dir=fig_dir)
     with Runner(args.jobs, scheduler=args.scheduler, what=spec.what) as runner:
         results = spec.collect(plan, runner.map(spec.job(counts), plan, weight=spec.weight, key=spec.key))
         for writer in spec.sections:
             writer(rep, results, counts)
         provenance = Provenance.of(spec.module, argv_list, runner, quick=args.quick)
-    path = spec.write(rep, results, counts, provenance)
+    print_claims(rep, spec.write(rep, results, counts, provenance), provenance)
+    return 0
+
+
+def print_claims(rep: Report, path: Path, provenance: Provenance) -> None:
+    """The end of a reproduction command: the claim table on stdout; the page written and the wall time on
+    stderr."""
     print(claims_table(rep.rows))
     print(f"\nreport: {path} (wall time {provenance.wall_s:.0f} s)", file=sys.stderr)
-    return 0
+
+
+def reproduction_main(spec: Reproduction, command: str, doc: str | None) -> Main:
+    """A reproduction module's ``main(argv)``: :func:`run_reproduction` of ``spec`` with the project's exit
+    statuses (:func:`terrain_estimation.cli.cli_main` named ``command``); ``doc``: the module's docstring."""
+
+    def main(argv: Sequence[str] | None = None) -> int:
+        """Command-line entry point; returns the exit status."""
+        return run_reproduction(spec, argv, doc)
+
+    return cli_main(command)(main)

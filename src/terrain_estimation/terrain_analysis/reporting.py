@@ -158,6 +158,13 @@ class Report:
     not_reproduced: list[str] = field(default_factory=list)
     figures: list[Path] = field(default_factory=list)
 
+    @classmethod
+    def for_page(cls, out_dir: str | os.PathLike[str], page: str) -> Report:
+        """The report of the page ``out_dir/<page>.md``, its figures in ``out_dir/<page>/`` (created)."""
+        fig_dir = Path(out_dir) / page
+        fig_dir.mkdir(parents=True, exist_ok=True)
+        return cls(out=Path(out_dir) / f"{page}.md", fig_dir=fig_dir)
+
     def row(
         self,
         case: str,
@@ -210,6 +217,14 @@ class Report:
     def link(self, path: Path, alt: str) -> str:
         rel = os.path.relpath(path, self.out.parent)
         return f"![{alt}]({rel})"
+
+    def add_section(self, lines: Sequence[str], *figures: tuple[Any, str, str]) -> None:
+        """Append a section: its ``lines``, then each ``(figure, file name, alt text)`` saved
+        (:meth:`save_figure`) and linked, each link followed by an empty line."""
+        text = list(lines)
+        for fig, name, alt in figures:
+            text += [self.link(self.save_figure(fig, name), alt), ""]
+        self.sections.append("\n".join(text))
 
 
 def pyplot() -> Any:
@@ -435,10 +450,13 @@ def _section_re(name: str) -> Any:
     return re.compile(rf"\n*{begin}\n.*?\n{end}\n", re.DOTALL)
 
 
-def write_section(path: str | os.PathLike[str], name: str, text: str, *, title: str | None = None) -> Path:
+def write_section(
+    path: str | os.PathLike[str], name: str, text: str, *, title: str | None = None, note: bool = False
+) -> Path:
     """Put ``text`` in the page ``path`` as the section ``name``: replaced in place if there, else appended.
 
-    ``title`` heads a page that does not exist yet (a new page otherwise starts with the section).
+    ``title`` heads a page that does not exist yet (a new page otherwise starts with the section); ``note``:
+    say on stderr which section of which page was written.
 
     Two commands can then share one results page (``make bench-load`` writes
     ``robustness.md`` whole and keeps the sections of others: :func:`keep_sections`).
@@ -463,6 +481,8 @@ def write_section(path: str | os.PathLike[str], name: str, text: str, *, title: 
     partial = page.with_name(f".{page.name}.partial-{os.getpid()}")
     partial.write_text(new.lstrip("\n"))
     os.replace(partial, page)
+    if note:
+        print(f"wrote section {name!r} of {page}", file=sys.stderr)
     return page
 
 

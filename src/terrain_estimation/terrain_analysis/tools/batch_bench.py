@@ -342,9 +342,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from terrain_analysis.reporting import write_section
         from terrain_analysis.tools.batch_engine_choice import PAGE_TITLE
 
-        page = Path(args.page)
-        write_section(page, SECTION, text, title=PAGE_TITLE)
-        print(f"wrote section {SECTION!r} of {page}", file=sys.stderr)
+        write_section(args.page, SECTION, text, title=PAGE_TITLE, note=True)
     return 0
 
 

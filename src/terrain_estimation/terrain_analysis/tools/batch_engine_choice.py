@@ -344,9 +344,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     }
     text = _page_text(rows, sizes, imports, meta)
     print(text)
-    page = Path(args.out)
-    write_section(page, SECTION, text, title=PAGE_TITLE)
-    print(f"wrote section {SECTION!r} of {page}", file=sys.stderr)
+    write_section(args.out, SECTION, text, title=PAGE_TITLE, note=True)
     return 0
 
 

@@ -109,20 +109,14 @@ def case1(rep: Report, res: Results, counts: Counts) -> None:
             censored=st["censored"] >= n / 2,
         )
     for label, name in (("sckf", "SCKF"), ("ekf", "EKF")):
-        rep.row(
-            "1",
-            f"{name} relative RMSE of k_s, 0–10 s, median over runs (%)",
-            stats[label]["r010"]["median"],
-            paper[label][0],
-            "info",
-        )
-        rep.row(
-            "1",
-            f"{name} relative RMSE of k_s, 2–{T:g} s, mean over runs (%)",
-            stats[label]["r212"]["mean"],
-            paper[label][0],
-            "info",
-        )
+        for key, window, stat in (("r010", "0–10", "median"), ("r212", f"2–{T:g}", "mean")):
+            rep.row(
+                "1",
+                f"{name} relative RMSE of k_s, {window} s, {stat} over runs (%)",
+                stats[label][key][stat],
+                paper[label][0],
+                "info",
+            )
     cens = {k: int(v["settle"]["censored"]) for k, v in stats.items()}
     clamp = {
         lab: sum(bool(np.any(r[lab].k_tot >= r[lab].k_tot_max * (1 - 1e-9))) for r in runs) for lab in ("sckf", "ekf")
@@ -173,7 +167,7 @@ def case1(rep: Report, res: Results, counts: Counts) -> None:
     ax.legend(fontsize=7, ncol=3)
     p2 = rep.save_figure(fig, "case1_rmse.png")
     lines += [rep.link(p1, "case 1 trajectory"), "", rep.link(p2, "case 1 RMSE per run"), ""]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines)
     for label, name in (("sckf", "SCKF"), ("ekf", "EKF")):
         m = stats[label]["r010"]["mean"]
         if m > paper[label][0]:
@@ -242,14 +236,14 @@ def case6(rep: Report, res: Results, counts: Counts) -> None:
             f"({type(exc).__name__}: {exc}). Re-run the command once it exists.",
             "",
         ]
-        rep.sections.append("\n".join(lines))
+        rep.add_section(lines)
         return
     n_bound = min(len(runs), 50)
     try:
         t_b, bound_pct, how = _call_pcrlb(fn, n_bound, counts.case1_duration)
     except Exception as exc:  # the module is owned elsewhere: report, do not crash the reproduction
         lines += [f"**Skipped**: calling `pcrlb_quarter_car` failed ({type(exc).__name__}: {exc}).", ""]
-        rep.sections.append("\n".join(lines))
+        rep.add_section(lines)
         return
     T = counts.case1_duration
     lines += [
@@ -291,9 +285,7 @@ def case6(rep: Report, res: Results, counts: Counts) -> None:
     axes[1].set_ylabel("RMSE / bound")
     axes[1].set_xlabel("time (s)")
     axes[1].legend(fontsize=7)
-    p = rep.save_figure(fig, "pcrlb.png")
-    lines += [rep.link(p, "PCRLB"), ""]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines, (fig, "pcrlb.png", "PCRLB"))
 
 
 # -- case 7 (noise forms; case 1 part) ---------------------------------------------------
@@ -335,7 +327,7 @@ def case7(rep: Report, res: Results, counts: Counts) -> None:
             paper = 3.26 if filt == "SCKF" else 3.33
             rep.row("7", f"Case 1 {filt} RMSE 0–10 s mean [printed Q_k] (%)", r010["mean"], paper, "<=")
     lines += ["", "On the 3-soil path the printed form cannot follow a soil change (case 2, rows [printed Q_k]).", ""]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines)
 
 
 # -- case 8 (profile rate) ----------------------------------------------------------------
@@ -390,6 +382,4 @@ def case8(rep: Report, res: Results, counts: Counts) -> None:
     ax.set_xscale("log")
     ax.set_xlabel("relative RMSE of k_s over 2–12 s (%), all runs")
     ax.set_title("Case 8: profile sampling rate (Graneville loam, ISO D, 10 m/s)", fontsize=9)
-    p = rep.save_figure(fig, "profile_rate.png")
-    lines += [rep.link(p, "profile rate"), ""]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines, (fig, "profile_rate.png", "profile rate"))

@@ -177,9 +177,7 @@ def case3(rep: Report, res: Results, counts: Counts) -> None:
     axes[1].set_xscale("log")
     axes[1].axvline(50.0, color="tab:red", ls=":", lw=1)
     axes[1].set_xlabel(f"steady-state mean |e| over 2–{T:g} s (%), all runs")
-    p = rep.save_figure(fig, "case3_lete_f.png")
-    lines += [rep.link(p, "case 3"), ""]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines, (fig, "case3_lete_f.png", "case 3"))
 
 
 # -- case 5 (LRV) ----------------------------------------------------------------------
@@ -262,6 +260,4 @@ def case5(rep: Report, res: Results, counts: Counts) -> None:
     axes[1].set_xlabel("time (s)")
     axes[1].legend(fontsize=7)
     axes[0].set_title("Case 5: LRV, regolith, ISO G, 2 m/s (cf. paper Fig. 11)", fontsize=9)
-    p = rep.save_figure(fig, "lrv.png")
-    lines += [rep.link(p, "LRV"), ""]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines, (fig, "lrv.png", "LRV"))

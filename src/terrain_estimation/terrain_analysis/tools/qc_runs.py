@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Literal, TypeVar
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -123,28 +123,26 @@ class Variant:
             return node_default_config(vehicle)
         # The paper's filter: a fixed re-open (0 = none), no move of the mean
         # (change_reopen_scale = change_jump_gain = 0).
+        model: dict[str, Any]
         if vehicle == "lrv":
-            lrv = LRVParams(
-                relative_damper=self.relative_damper,
-                ktot_noise_form=self.noise_form,
-                ekf_jacobian=self.jacobian,
-                stiffness_state=self.stiffness_state,
-            )
-            return SoilStiffnessEstimatorConfig(
-                vehicle="lrv",
-                lrv=lrv,
-                filter=self.filter,
-                change_ktot_std_frac=self.change_frac,
-                change_log_ks_std=self.change_log_std,
-                change_reopen_scale=0.0,
-                change_jump_gain=0.0,
-            )
-        qc = QuarterCarParams(
-            ktot_noise_form=self.noise_form, ekf_jacobian=self.jacobian, stiffness_state=self.stiffness_state
-        )
+            model = {
+                "vehicle": "lrv",
+                "lrv": LRVParams(
+                    relative_damper=self.relative_damper,
+                    ktot_noise_form=self.noise_form,
+                    ekf_jacobian=self.jacobian,
+                    stiffness_state=self.stiffness_state,
+                ),
+            }
+        else:
+            model = {
+                "vehicle": "quarter_car",
+                "quarter_car": QuarterCarParams(
+                    ktot_noise_form=self.noise_form, ekf_jacobian=self.jacobian, stiffness_state=self.stiffness_state
+                ),
+            }
         return SoilStiffnessEstimatorConfig(
-            vehicle="quarter_car",
-            quarter_car=qc,
+            **model,
             filter=self.filter,
             change_ktot_std_frac=self.change_frac,
             change_log_ks_std=self.change_log_std,
@@ -376,20 +374,8 @@ class Counts:
 
     @classmethod
     def quick(cls) -> Counts:
-        return cls(
-            case1=1,
-            rates=1,
-            table4=1,
-            lete=1,
-            meadow=1,
-            lrv=1,
-            stretch_s=3.0,
-            lete_duration=6.0,
-            lrv_duration=10.0,
-            nochange=1,
-            nochange_lrv=1,
-            nochange_duration=6.0,
-        )
+        """Smoke run: one run of every cell, short rides."""
+        return replace(cls().with_runs(1), stretch_s=3.0, lete_duration=6.0, lrv_duration=10.0, nochange_duration=6.0)
 
     def with_runs(self, n: int) -> Counts:
         return replace(self, case1=n, rates=n, table4=n, lete=n, meadow=n, lrv=n, nochange=n, nochange_lrv=n)
@@ -404,107 +390,31 @@ def _t4_key(road: str, speed: float) -> str:
 
 
 def build_plan(counts: Counts) -> list[RunSpec]:
-    """Every ride of the reproduction."""
-    plan: list[RunSpec] = []
-    gran = ("graneville_loam",)
-    for i in range(counts.case1):
-        plan.append(
-            RunSpec(
-                "case1",
-                _GROUP_GRANEVILLE,
-                i,
-                "quarter_car",
-                "D",
-                gran,
-                counts.case1_duration,
-                10.0,
-                counts.case1_duration,
-                (SCKF, EKF, SCKF_PRINTED, EKF_PRINTED, SCKF_LOG),
-            )
-        )
-    for rate in PROFILE_RATES[1:]:
-        for i in range(counts.rates):
-            plan.append(
-                RunSpec(
-                    f"rate_{rate:g}",
-                    _GROUP_GRANEVILLE,
-                    i,
-                    "quarter_car",
-                    "D",
-                    gran,
-                    counts.case1_duration,
-                    10.0,
-                    counts.case1_duration,
-                    (SCKF, EKF),
-                    profile_rate=rate,
-                )
-            )
-    t4_duration = 3 * counts.stretch_s
-    for road, speed in TABLE4_CELLS:
-        for i in range(counts.table4):
-            plan.append(
-                RunSpec(
-                    _t4_key(road, speed),
-                    _GROUP_TABLE4,
-                    i,
-                    "quarter_car",
-                    road,
-                    _PATH_SOILS,
-                    counts.stretch_s,
-                    speed,
-                    t4_duration,
-                    (SCKF, SCKF_PRINTED, SCKF_LOG, SCKF_PROJECT),
-                )
-            )
-    lete = ("lete_sand",)
-    for liftoff in (False, True):
-        variants = (SCKF, EKF, EKF_PAPER_JAC) + (() if liftoff else (SCKF_PRINTED, EKF_PRINTED))
-        for i in range(counts.lete):
-            plan.append(
-                RunSpec(
-                    "lete_liftoff" if liftoff else "lete",
-                    _GROUP_LETE,
-                    i,
-                    "quarter_car",
-                    "F",
-                    lete,
-                    counts.lete_duration,
-                    10.0,
-                    counts.lete_duration,
-                    variants,
-                    liftoff=liftoff,
-                )
-            )
-    for i in range(counts.meadow):
-        plan.append(
-            RunSpec(
-                "meadow",
-                _GROUP_MEADOW,
-                i,
-                "quarter_car",
-                "meadow_c",
-                _PATH_SOILS,
-                counts.stretch_s,
-                10.0,
-                t4_duration,
-                (SCKF,),
-            )
-        )
-    for i in range(counts.lrv):
-        plan.append(
-            RunSpec(
-                "lrv",
-                _GROUP_LRV,
-                i,
-                "lrv",
-                "G",
-                ("lunar_regolith",),
-                counts.lrv_duration,
-                2.0,
-                counts.lrv_duration,
-                (LRV_RELATIVE, LRV_LITERAL),
-            )
-        )
+    """Every ride of the reproduction: per cell, runs 0 … n − 1 of its seed group."""
+    c, qc, gran = counts, "quarter_car", ("graneville_loam",)
+    t1, t4, st, tl, tv = c.case1_duration, 3 * c.stretch_s, c.stretch_s, c.lete_duration, c.lrv_duration
+    case1 = (SCKF, EKF, SCKF_PRINTED, EKF_PRINTED, SCKF_LOG)
+    t4_variants = (SCKF, SCKF_PRINTED, SCKF_LOG, SCKF_PROJECT)
+    lete = {False: (SCKF, EKF, EKF_PAPER_JAC, SCKF_PRINTED, EKF_PRINTED), True: (SCKF, EKF, EKF_PAPER_JAC)}
+    # (runs, key, seed group, vehicle, road, soils, stretch (s), speed (m/s), duration (s), variants, options)
+    cells: list[tuple[Any, ...]] = [
+        (c.case1, "case1", _GROUP_GRANEVILLE, qc, "D", gran, t1, 10.0, t1, case1, {}),
+        *(
+            (c.rates, f"rate_{r:g}", _GROUP_GRANEVILLE, qc, "D", gran, t1, 10.0, t1, (SCKF, EKF), {"profile_rate": r})
+            for r in PROFILE_RATES[1:]
+        ),
+        *(
+            (c.table4, _t4_key(road, v), _GROUP_TABLE4, qc, road, _PATH_SOILS, st, v, t4, t4_variants, {})
+            for road, v in TABLE4_CELLS
+        ),
+        *(
+            (c.lete, key, _GROUP_LETE, qc, "F", ("lete_sand",), tl, 10.0, tl, lete[lift], {"liftoff": lift})
+            for lift, key in ((False, "lete"), (True, "lete_liftoff"))
+        ),
+        (c.meadow, "meadow", _GROUP_MEADOW, qc, "meadow_c", _PATH_SOILS, st, 10.0, t4, (SCKF,), {}),
+        (c.lrv, "lrv", _GROUP_LRV, "lrv", "G", ("lunar_regolith",), tv, 2.0, tv, (LRV_RELATIVE, LRV_LITERAL), {}),
+    ]
+    plan = [RunSpec(key, group, i, *ride, **options) for n, key, group, *ride, options in cells for i in range(n)]
     return plan + build_change_plan(counts)
 
 
@@ -536,22 +446,8 @@ def build_change_plan(counts: Counts) -> list[RunSpec]:
                 (SCKF_PROJECT,),
             )
         )
-    for i in range(counts.nochange_lrv):
-        plan.append(
-            RunSpec(
-                "nochange_lrv",
-                GROUP_NOCHANGE_LRV,
-                i,
-                "lrv",
-                "G",
-                ("lunar_regolith",),
-                duration,
-                2.0,
-                duration,
-                (SCKF_PROJECT,),
-            )
-        )
-    return plan
+    lrv: tuple[Any, ...] = ("lrv", "G", ("lunar_regolith",), duration, 2.0, duration, (SCKF_PROJECT,))
+    return plan + [RunSpec("nochange_lrv", GROUP_NOCHANGE_LRV, i, *lrv) for i in range(counts.nochange_lrv)]
 
 
 Results = dict[str, list[dict[str, Trace]]]

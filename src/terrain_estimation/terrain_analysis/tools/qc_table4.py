@@ -237,26 +237,25 @@ def case2(rep: Report, res: Results, counts: Counts) -> None:
                     "paper's effective value is unknown."
                 )
     runs_10 = {road: res[_t4_key(road, 10.0)][0] for road in ("B", "D", "F") if res.get(_t4_key(road, 10.0))}
-    labels = (("sckf", "SCKF (per-step)"), ("sckf_printed", "SCKF (printed Q_k)"))
-    p1 = _plot_path(
-        rep,
-        "table4_profiles.png",
-        [(f"ISO {road}, 10 m/s, run 0", run) for road, run in runs_10.items()],
-        labels,
-        stretch,
-        "Case 2: k_s on LETE sand → Upland sandy loam → Graneville loam (cf. paper Fig. 8)",
-    )
     runs_d = {s: res[_t4_key("D", s)][0] for s in (2.0, 5.0, 10.0) if res.get(_t4_key("D", s))}
-    p2 = _plot_path(
-        rep,
-        "table4_speeds.png",
-        [(f"ISO D, {s:g} m/s, run 0", run) for s, run in runs_d.items()],
-        labels,
-        stretch,
-        "Case 2: k_s on the 3-soil path, ISO D at 2 / 5 / 10 m/s (cf. paper Fig. 9)",
+    labels = (("sckf", "SCKF (per-step)"), ("sckf_printed", "SCKF (printed Q_k)"))
+    p1, p2 = (
+        _plot_path(rep, name, runs, labels, stretch, title)
+        for name, runs, title in (
+            (
+                "table4_profiles.png",
+                [(f"ISO {road}, 10 m/s, run 0", run) for road, run in runs_10.items()],
+                "Case 2: k_s on LETE sand → Upland sandy loam → Graneville loam (cf. paper Fig. 8)",
+            ),
+            (
+                "table4_speeds.png",
+                [(f"ISO D, {s:g} m/s, run 0", run) for s, run in runs_d.items()],
+                "Case 2: k_s on the 3-soil path, ISO D at 2 / 5 / 10 m/s (cf. paper Fig. 9)",
+            ),
+        )
     )
     lines += [rep.link(p1, "Table 4 profiles"), "", rep.link(p2, "Table 4 speeds"), ""]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines)
 
 
 # -- case 3 (LETE sand, ISO F) ------------------------------------------------------
@@ -345,7 +344,7 @@ def case4(rep: Report, res: Results, counts: Counts) -> None:
     ax.set_title("Case 4, run 0: relative error of k_s (dotted: 5 % and soil changes)", fontsize=9)
     p2 = rep.save_figure(fig, "meadow_c_error.png")
     lines += [rep.link(p, "Meadow-c path"), "", rep.link(p2, "Meadow-c error"), ""]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines)
 
 
 _T4_BOUNDS: dict[tuple[str, float, int, float], tuple[float, float]] = {}
@@ -423,4 +422,4 @@ def table4_bounds(rep: Report, res: Results, counts: Counts) -> None:
         "SCKF here (no re-open) spends seconds walking k_tot to the new soil, which the bound does not charge.",
         "",
     ]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines)

@@ -44,10 +44,9 @@ the same road and the same sensor noise (paired comparison).
 from __future__ import annotations
 
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 
-from terrain_analysis.experiment import Reproduction, run_reproduction
+from terrain_analysis.experiment import Reproduction, reproduction_main
 from terrain_analysis.reporting import Provenance, Report, write_page
 from terrain_analysis.tools.qc_graneville import case1, case6, case7, case8
 from terrain_analysis.tools.qc_lete_lrv import case3, case5
@@ -69,7 +68,6 @@ from terrain_analysis.tools.qc_runs import (
 )
 from terrain_analysis.tools.qc_table4 import case2, case4, table4_bounds
 from terrain_analysis.tools.reproduce_qc_change import change_sections
-from terrain_estimation.cli import cli_main
 
 __all__ = [
     "ROOT_SEED",
@@ -147,10 +145,8 @@ REPRODUCTION = Reproduction(
 """The reproduction as an experiment description (:func:`terrain_analysis.experiment.run_reproduction`)."""
 
 
-@cli_main("reproduce-qc")
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command-line entry point; returns the exit status."""
-    return run_reproduction(REPRODUCTION, argv, __doc__)
+main = reproduction_main(REPRODUCTION, "reproduce-qc", __doc__)
+"""Command-line entry point; returns the exit status."""
 
 
 if __name__ == "__main__":

@@ -143,7 +143,7 @@ def _table4_project(rep: Report, res: Results, counts: Counts) -> None:
                 f"{_fmt(m['graneville_steady']['mean'])} %, {missed} of {arr.size} changes missed)."
             )
     lines.append("")
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines)
 
 
 def _nochange(rep: Report, res: Results, counts: Counts) -> None:
@@ -190,7 +190,7 @@ def _nochange(rep: Report, res: Results, counts: Counts) -> None:
         "unit nor white, stay from the alarm level.",
         "",
     ]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines)
 
 
 def change_sections(rep: Report, res: Results, counts: Counts) -> None:

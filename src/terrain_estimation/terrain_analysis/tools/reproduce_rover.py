@@ -55,10 +55,9 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 
-from terrain_analysis.experiment import Runner
-from terrain_analysis.reporting import Provenance, Report, claims_table, reproduction_arguments
+from terrain_analysis.experiment import Runner, print_claims
+from terrain_analysis.reporting import Provenance, Report, reproduction_arguments
 from terrain_analysis.tools.rover_consistency import section_consistency
 from terrain_analysis.tools.rover_curvature import section_curvature
 from terrain_analysis.tools.rover_fits import (
@@ -153,16 +152,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     counts = Counts.quick() if args.quick else Counts()
     if args.seeds is not None:
         counts = counts.with_seeds(args.seeds)
-    out_dir = Path(args.out)
-    fig_dir = out_dir / "rover"
-    fig_dir.mkdir(parents=True, exist_ok=True)
+    rr = RoverReport(Report.for_page(args.out, "rover"))
     plan = build_plan(counts, args.terramechanics)
     print(
         f"reproduce_rover: {len(plan)} jobs ({counts.seeds} noise runs per terrain) on {args.jobs} process(es)",
         file=sys.stderr,
         flush=True,
     )
-    rr = RoverReport(Report(out=out_dir / "rover.md", fig_dir=fig_dir))
     with Runner(args.jobs, scheduler=args.scheduler, what="jobs (6 terrains, 2 simulator-speed runs)") as runner:
         res = execute(plan, counts, runner)
         surrogate = terramechanics_surrogate()
@@ -174,9 +170,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         section_speed(rr, res, counts)
         section_consistency(rr, res, ALL_VARIANTS, VARIANTS)
         prov = Provenance.of("terrain_analysis.tools.reproduce_rover", argv_list, runner, quick=args.quick)
-    path = write_report(rr, res, counts, prov, args.terramechanics)
-    print(claims_table(rr.rep.rows))
-    print(f"\nreport: {path} (wall time {prov.wall_s:.0f} s)", file=sys.stderr)
+    print_claims(rr.rep, write_report(rr, res, counts, prov, args.terramechanics), prov)
     return 0
 
 

@@ -43,10 +43,9 @@ from __future__ import annotations
 import functools
 import math
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 
-from terrain_analysis.experiment import Reproduction, run_reproduction
+from terrain_analysis.experiment import Reproduction, reproduction_main
 from terrain_analysis.reporting import Claim, Provenance, Report, claims_table, write_page
 from terrain_analysis.tools.skid_metrics import (
     Results,
@@ -72,7 +71,6 @@ from terrain_analysis.tools.skid_runs import (
 )
 from terrain_analysis.tools.skid_tables import _diag, _r, section_straight, section_tables
 from terrain_analysis.tools.skid_turn import not_reproduced, section_icr, section_mismatch, section_turn_obs
-from terrain_estimation.cli import cli_main
 from terrain_estimation.estimators.skid_steer import SkidSteerEstimatorConfig
 from vehicle_sim.plants.skid_steer import SkidSteerSensors
 
@@ -183,10 +181,8 @@ REPRODUCTION = Reproduction(
 """The reproduction as an experiment description (:func:`terrain_analysis.experiment.run_reproduction`)."""
 
 
-@cli_main("reproduce-skid")
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command-line entry point; returns the exit status."""
-    return run_reproduction(REPRODUCTION, argv, __doc__)
+main = reproduction_main(REPRODUCTION, "reproduce-skid", __doc__)
+"""Command-line entry point; returns the exit status."""
 
 
 if __name__ == "__main__":

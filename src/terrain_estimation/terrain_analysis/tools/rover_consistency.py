@@ -197,4 +197,4 @@ def section_consistency(rr: Any, res: Any, variants: Sequence[str], defaults: Se
         "another noise seed the bogie wheels' W was over-confident (e²/σ² 2–4). The paper's choices (ż0^R = 0, "
         "load-proportional split) leave a contact-angle error of 1–2° that no variance here covers.",
     ]
-    rr.rep.sections.append("\n".join(lines))
+    rr.rep.add_section(lines)

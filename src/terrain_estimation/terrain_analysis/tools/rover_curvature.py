@@ -183,7 +183,7 @@ def section_curvature(rr: RoverReport, res: Results, counts: Counts) -> None:
         _fig_curvature(rr, kappa_rows, kappa_rows3, delta_rows, delta_rows3),
         "",
     ]
-    rr.rep.sections.append("\n".join(lines))
+    rr.rep.add_section(lines)
     rr.claim(
         "V-B",
         "paper's choices: corr(contact-angle error e_γ, −δ), all estimates",

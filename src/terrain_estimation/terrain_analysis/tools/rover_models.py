@@ -64,7 +64,7 @@ def section_surrogate(rr: RoverReport, surrogate: TerramechanicsSurrogate) -> No
         f"{PAPER_SURROGATE_RANGE['tau'][0]:g} … {PAPER_SURROGATE_RANGE['tau'][1]:g} |",
         "",
     ]
-    rr.rep.sections.append("\n".join(lines))
+    rr.rep.add_section(lines)
     rr.claim(
         "surrogate",
         "4th-order surrogate RMS, DP (N)",
@@ -198,7 +198,7 @@ def section_tables67(rr: RoverReport, res: Results, counts: Counts, surrogate: T
         _fig_fit_surfaces(rr, res, fits, surrogate),
         "",
     ]
-    rr.rep.sections.append("\n".join(lines))
+    rr.rep.add_section(lines)
     for v, key in (("e2", "dp.e2"), ("e3", "dp.e3")):
         for k, name in ((1, "p10"), (3, "p20")):
             rr.claim(
@@ -276,7 +276,7 @@ def section_tables67(rr: RoverReport, res: Results, counts: Counts, surrogate: T
         _fig_fit_errors(rr, fits, surrogate),
         "",
     ]
-    rr.rep.sections.append("\n".join(lines))
+    rr.rep.add_section(lines)
     for v in ALL_VARIANTS:
         f = by_v[v]
         tau_rms = float(np.mean([x.rms["tau"] for x in f]))
@@ -398,7 +398,7 @@ def _section_model_error(
         *online_lines(online["tau"], "N·m"),
         "",
     ]
-    rr.rep.sections.append("\n".join(lines))
+    rr.rep.add_section(lines)
     rr.notes["online_model_error"] = overall
     for v in VARIANTS:
         s = overall.get((v, "dp"))

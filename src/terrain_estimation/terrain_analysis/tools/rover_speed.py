@@ -84,7 +84,7 @@ def section_speed(rr: RoverReport, res: Results, counts: Counts) -> None:
         'estimator". `make bench` times the Estimator 1 and 2/3 steps separately.',
         "",
     ]
-    rr.rep.sections.append("\n".join(lines))
+    rr.rep.add_section(lines)
     rr.notes["speeds"] = speeds
     rr.notes["est_speed"] = est_speed
     for v in VARIANTS:

@@ -163,7 +163,7 @@ def section_table5(rr: RoverReport, res: Results, counts: Counts) -> None:
         _fig_table5(rr, res, terrains),
         "",
     ]
-    rr.rep.sections.append("\n".join(lines))
+    rr.rep.add_section(lines)
     rr.notes["table5_counts"] = counts_by
     rr.notes["table5_alt"] = alt
     for variants, label, paper_text in (
@@ -375,4 +375,4 @@ def section_timeseries(rr: RoverReport, res: Results, counts: Counts) -> None:
     lines.append("")
     for n in terrains:
         lines += [_fig_timeseries(rr, res, n), ""]
-    rr.rep.sections.append("\n".join(lines))
+    rr.rep.add_section(lines)

@@ -296,24 +296,31 @@ CONSIDER_SETS: dict[str, tuple[tuple[str, ...], float, float]] = {
 }
 
 
-def consider_markdown(rows: Sequence[RunFigures]) -> str:
-    """The sensitivity section: per scenario and consider setting, the NEES and the per-quantity e²/σ²."""
+def _scenario_filter_table(
+    rows: Sequence[RunFigures], header: str, cells: Callable[[dict[str, float]], str]
+) -> tuple[dict[tuple[str, str], dict[str, float]], list[str], list[str], list[str]]:
+    """The seed means (:func:`summarise`), the scenarios and filters in run order, and the Markdown table with
+    one line per (scenario, filter): ``header``, its rule, then ``| scenario | filter | `` + ``cells(means)``."""
     table = summarise(rows)
     scenarios = list(dict.fromkeys(r.scenario for r in rows))
     filters = list(dict.fromkeys(r.filter for r in rows))
-    lines = [
+    lines = [header, "|" + "---|" * (header.count("|") - 1)]
+    lines += [f"| {sc} | {f} | " + cells(table[(sc, f)]) for sc in scenarios for f in filters]
+    return table, scenarios, filters, lines
+
+
+def consider_markdown(rows: Sequence[RunFigures]) -> str:
+    """The sensitivity section: per scenario and consider setting, the NEES and the per-quantity e²/σ²."""
+    table, scenarios, filters, lines = _scenario_filter_table(
+        rows,
         "| scenario | considered | runs | NEES (3) | NEES windows in band | e2/s2 vx | e2/s2 vy | e2/s2 r | "
         "vy within 2 sigma |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for sc in scenarios:
-        for f in filters:
-            v = table[(sc, f)]
-            lines.append(
-                f"| {sc} | {f} | {v['runs']:.0f} | {v['mean_nees']:.2f} | {100 * v['nees_share']:.0f} % | "
-                f"{v['normalised_vx']:.2f} | {v['normalised_vy']:.2f} | {v['normalised_r']:.2f} | "
-                f"{100 * v['within_2sigma_vy']:.0f} % |"
-            )
+        lambda v: (
+            f"{v['runs']:.0f} | {v['mean_nees']:.2f} | {100 * v['nees_share']:.0f} % | "
+            f"{v['normalised_vx']:.2f} | {v['normalised_vy']:.2f} | {v['normalised_r']:.2f} | "
+            f"{100 * v['within_2sigma_vy']:.0f} % |"
+        ),
+    )
     in_band = {f: sum(table[(sc, f)]["nees_share"] >= 0.9 for sc in scenarios) for f in filters}
     lines.append("")
     lines.append(
@@ -350,24 +357,18 @@ def markdown(rows: Sequence[RunFigures], *, baseline: str = "UKF, tuned", candid
     """The report section: per scenario and filter the seed means, then the ratios the issue asks for."""
     from vehicle_sim.plants.skid_steer_scenarios import MISMATCH_SCENARIOS
 
-    table = summarise(rows)
-    scenarios = list(dict.fromkeys(r.scenario for r in rows))
-    filters = list(dict.fromkeys(r.filter for r in rows))
-    lines = [
+    table, scenarios, filters, lines = _scenario_filter_table(
+        rows,
         "| scenario | filter | runs | mean abs e_beta (mrad) | RMS e_vy (m/s) | RMS e_vx (m/s) | RMS e_r (mrad/s) "
         "| NEES (3) | NEES windows in band | NIS (3) | NIS windows in band | e2/s2 vx, vy, r | CPU/step (us) "
         "| resets |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for s in scenarios:
-        for f in filters:
-            v = table[(s, f)]
-            lines.append(
-                f"| {s} | {f} | {v['runs']:.0f} | {1e3 * v['mean_abs_beta']:.2f} | {v['rms_vy']:.4f} | "
-                f"{v['rms_vx']:.4f} | {1e3 * v['rms_r']:.2f} | {v['mean_nees']:.2f} | {100 * v['nees_share']:.0f} % | "
-                f"{v['mean_nis']:.2f} | {100 * v['nis_share']:.0f} % | {v['normalised_vx']:.2f}, "
-                f"{v['normalised_vy']:.2f}, {v['normalised_r']:.2f} | {v['cpu_per_step_us']:.0f} | {v['resets']:.1f} |"
-            )
+        lambda v: (
+            f"{v['runs']:.0f} | {1e3 * v['mean_abs_beta']:.2f} | {v['rms_vy']:.4f} | "
+            f"{v['rms_vx']:.4f} | {1e3 * v['rms_r']:.2f} | {v['mean_nees']:.2f} | {100 * v['nees_share']:.0f} % | "
+            f"{v['mean_nis']:.2f} | {100 * v['nis_share']:.0f} % | {v['normalised_vx']:.2f}, "
+            f"{v['normalised_vy']:.2f}, {v['normalised_r']:.2f} | {v['cpu_per_step_us']:.0f} | {v['resets']:.1f} |"
+        ),
+    )
     mismatch = [s for s in MISMATCH_SCENARIOS if s in scenarios]
     if baseline in filters and candidate in filters and mismatch:
         lines += ["", f"Ratio {candidate} / {baseline} (seed means):", ""]

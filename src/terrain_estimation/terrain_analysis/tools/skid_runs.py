@@ -104,9 +104,8 @@ class Counts:
     @classmethod
     def quick(cls) -> Counts:
         """Smoke run: one short run per case, windows moved inside the short runs."""
-        return cls(
-            runs=1,
-            mismatch_runs=1,
+        return replace(
+            cls().with_runs(1),
             straight_duration=11.0,
             turn_duration=12.0,
             s_duration=10.0,

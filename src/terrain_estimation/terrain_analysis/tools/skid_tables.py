@@ -8,7 +8,7 @@ other sections share.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -55,6 +55,12 @@ def _runs(n: int) -> str:
 
 def _pct(x: float) -> str:
     return _fmt(100.0 * x, 1)
+
+
+def _per_filter(res: Results, case: str, metric: str, fmt: Callable[[float], str] = _r, unit: str = "") -> str:
+    """Every filter's mean over the runs of ``case`` of ``metric``: ``"UKF a, STUKF b, AN-STUKF c"``, each value
+    through ``fmt`` and followed by ``unit``."""
+    return ", ".join(f"{FILTER_NAMES[f]} {fmt(res.mean(case, f'{f}.{metric}'))}{unit}" for f in FILTERS)
 
 
 def _pm(s: dict[str, float], scale: float = 1.0, digits: int = 4) -> str:
@@ -178,9 +184,7 @@ def section_tables(rep: Report, res: Results, counts: Counts) -> None:
         )
         lines += [
             f"Mean |v̂y − v_y| against GNSS / truth (m/s, mean over runs): {vy_rows}. "
-            "Mean |v̂x − v_x| against truth (m/s): "
-            + ", ".join(f"{FILTER_NAMES[f]} {_r(res.mean(case, f'{f}.vx_truth_mae'))}" for f in FILTERS)
-            + ".",
+            "Mean |v̂x − v_x| against truth (m/s): " + _per_filter(res, case, "vx_truth_mae") + ".",
             "",
         ]
         run0 = res.first.get(case)
@@ -191,7 +195,7 @@ def section_tables(rep: Report, res: Results, counts: Counts) -> None:
             ]
         if case == "s_shape":
             lines += [_fig_error_runs(rep, res, counts), ""]
-        rep.sections.append("\n".join(lines))
+        rep.add_section(lines)
         _claims_table23(rep, res, case, table, paper)
 
 
@@ -302,20 +306,20 @@ def section_straight(rep: Report, res: Results, counts: Counts) -> None:
     lines += [
         "",
         "At steady speed every filter sits near the encoder speed (mean signed error "
-        + ", ".join(f"{FILTER_NAMES[f]} {_fmt(res.mean(case, f'{f}.steady_mean_err'), 4)}" for f in FILTERS)
+        + _per_filter(res, case, "steady_mean_err", _r)
         + f", encoder {_fmt(res.mean(case, 'encoder.steady_mean_err'), 4)} m/s): the truth needs a positive slip "
         f"(κ = {_fmt(res.mean(case, 'truth.slip_steady'), 4)}) to overcome the motion resistance, which the "
         f"observer does not model (its slip estimate: {_fmt(res.mean(case, 'an_stukf.slip_steady'), 4)}).",
         "",
         "Strong tracking active (λ > 1) on a fraction of the steps of the whole run: "
-        + ", ".join(f"{FILTER_NAMES[f]} {_pct(res.mean(case, f'{f}.fading_active'))} %" for f in FILTERS)
+        + _per_filter(res, case, "fading_active", _pct, unit=" %")
         + ".",
         "",
     ]
     run0 = res.first.get(case)
     if run0 is not None:
         lines += [_fig_straight(rep, run0), ""]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines)
     ukf_lag = float(np.mean(np.abs(res.values(case, "ukf.lag"))))
     an_lag = float(np.mean(np.abs(res.values(case, "an_stukf.lag"))))
     rep.claim(

@@ -34,7 +34,7 @@ from terrain_analysis.tools.skid_runs import (
     Counts,
     RunData,
 )
-from terrain_analysis.tools.skid_tables import _diag, _pct, _pm, _r, _runs, _sideslip_table
+from terrain_analysis.tools.skid_tables import _diag, _pct, _per_filter, _pm, _r, _runs, _sideslip_table
 from terrain_estimation.estimators.skid_steer import SkidSteerEstimatorConfig
 from terrain_estimation.models.skid_steer import WHEEL_NAMES, SkidSteerParams, axle_positions
 from vehicle_sim.plants.skid_steer import (
@@ -136,12 +136,12 @@ def section_icr(rep: Report, res: Results, counts: Counts) -> None:
         lines += [
             f"S-shape at 30 km/h, {a:g}–{b:g} s (the paper's ICR window): median ICR_x over the valid samples, "
             f"mean over runs: truth {_fmt(res.mean(s_case, 'truth.icr_x_median_early'), 3)} m, "
-            + ", ".join(f"{FILTER_NAMES[f]} {_fmt(res.mean(s_case, f'{f}.icr_x_median_early'), 3)} m" for f in FILTERS)
+            + _per_filter(res, s_case, "icr_x_median_early", lambda x: _fmt(x, 3), unit=" m")
             + f" (small-radius turn, truth: {_fmt(res.mean(case, 'truth.icr_x_mean'), 3)} m). The median is used "
             "because ICR_x = −v_y/r is ill-conditioned where r crosses zero between the lobes.",
             "",
         ]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines)
     for src in ("truth", "an_stukf", "ukf"):
         value = res.mean(case, f"{src}.icr_x_mean")
         rep.claim(
@@ -231,21 +231,21 @@ def section_turn_obs(rep: Report, res: Results, counts: Counts) -> None:
         f"{_fmt(res.mean(case, 'truth.yaw_rate_mean'), 4)} rad/s).",
         "",
         "Filter internals over the window (mean over runs): strong tracking active (λ > 1) on "
-        + ", ".join(f"{FILTER_NAMES[f]} {_pct(res.mean(case, f'{f}.fading_active'))} %" for f in FILTERS)
+        + _per_filter(res, case, "fading_active", _pct, unit=" %")
         + " of the steps; mean NIS "
-        + ", ".join(f"{FILTER_NAMES[f]} {_fmt(res.mean(case, f'{f}.nis_mean'), 3)}" for f in FILTERS)
+        + _per_filter(res, case, "nis_mean", lambda x: _fmt(x, 3))
         + f" (3 for a consistent filter); AN-STUKF noise scale 1 + K_q ᾱ = "
         f"{_fmt(res.mean(case, 'an_stukf.noise_scale_mean'), 3)}; filter recoveries "
         + ", ".join(f"{FILTER_NAMES[f]} {_fmt(sum(res.values(case, f'{f}.recoveries')), 0)}" for f in FILTERS)
         + "; estimator cost "
-        + ", ".join(f"{FILTER_NAMES[f]} {_fmt(res.mean(case, f'{f}.us_per_step'), 0)} µs" for f in FILTERS)
+        + _per_filter(res, case, "us_per_step", lambda x: _fmt(x, 0), unit=" µs")
         + " per sample.",
         "",
     ]
     run0 = res.first.get(case)
     if run0 is not None:
         lines += [_fig_turn(rep, run0, counts.turn_window), ""]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines)
     for src in ("truth", "an_stukf"):
         label = FILTER_NAMES.get(src, "truth")
         right, left = res.mean(case, f"{src}.slip_right"), res.mean(case, f"{src}.slip_left")
@@ -285,14 +285,14 @@ def section_mismatch(rep: Report, res: Results, counts: Counts) -> None:
         *_sideslip_table(res, case, "truth", None),
         "",
         f"Errors against the truth at 100 Hz over {t0:g}–{t1:g} s. Mean NIS: "
-        + ", ".join(f"{FILTER_NAMES[f]} {_fmt(res.mean(case, f'{f}.nis_mean'), 3)}" for f in FILTERS)
+        + _per_filter(res, case, "nis_mean", lambda x: _fmt(x, 3))
         + "; strong tracking active on "
-        + ", ".join(f"{FILTER_NAMES[f]} {_pct(res.mean(case, f'{f}.fading_active'))} %" for f in FILTERS)
+        + _per_filter(res, case, "fading_active", _pct, unit=" %")
         + " of the steps; truth ICR_x "
         + f"{_fmt(res.mean(case, 'truth.icr_x_mean'), 3)} m, mean β {_r(res.mean(case, 'truth.beta_mean'))} rad.",
         "",
     ]
-    rep.sections.append("\n".join(lines))
+    rep.add_section(lines)
     ratio = res.mean(case, "an_stukf.truth.mean_abs") / res.mean(case, "ukf.truth.mean_abs")
     rep.claim("sensitivity", "tire mismatch: AN-STUKF / UKF mean |e_β| vs truth", ratio, "—", "—", None)
 
@@ -319,13 +319,13 @@ def not_reproduced(rep: Report, res: Results, counts: Counts) -> list[str]:
             "- **AN-STUKF vs UKF (Tables 2, 3, straight run).** The three filters give nearly the same estimates: "
             f"AN-STUKF / UKF mean |e_β| against the truth is {_fmt(turn_ratio, 3)} in the turn and "
             f"{_fmt(s_ratio, 3)} on the S-shape, and their v_x lags on the ramp are "
-            + ", ".join(f"{FILTER_NAMES[f]} {_fmt(res.mean(accel, f'{f}.lag'), 4)} s" for f in FILTERS)
+            + _per_filter(res, accel, "lag", _r, unit=" s")
             + ". Why: (1) **strong tracking never fires** (λ > 1 on "
             + ", ".join(f"{FILTER_NAMES[f]} {_pct(fading[f])} %" for f in FILTERS)
             + " of the turn's steps), so STUKF = UKF. Its test e_kᵀe_k > γ_th·tr(P_zz) (γ_th = "
             f"{cfg.strong_tracking.gamma_th:g}) asks for innovations {cfg.strong_tracking.gamma_th:g} times larger "
             "than the filter expects, while the mean NIS is "
-            + ", ".join(f"{FILTER_NAMES[f]} {_fmt(res.mean(turn, f'{f}.nis_mean'), 3)}" for f in FILTERS)
+            + _per_filter(res, turn, "nis_mean", lambda x: _fmt(x, 3))
             + " (3 for a consistent filter): the default R0 of the accelerations, "
             f"{_diag(cfg.r0_diag[:1])} (m/s²)², is "
             f"{_fmt(cfg.r0_diag[0] / SkidSteerSensors().accel_noise_std ** 2, 1)} × the simulated accelerometer "
@@ -361,7 +361,7 @@ def not_reproduced(rep: Report, res: Results, counts: Counts) -> list[str]:
         out.append(
             f"- **ICR near the CM, not ahead of the front axle.** The truth puts the ICR at x = "
             f"{_fmt(res.mean(turn, 'truth.icr_x_mean'), 3)} m (filters "
-            + ", ".join(f"{FILTER_NAMES[f]} {_fmt(res.mean(turn, f'{f}.icr_x_mean'), 3)} m" for f in FILTERS)
+            + _per_filter(res, turn, "icr_x_mean", lambda x: _fmt(x, 3), unit=" m")
             + f"), not beyond the front axle at {front:+.3f} m. This is what the shared physics gives, explained "
             "by the lateral force balance: the lateral tire forces must sum to the centripetal force m·v_x·r = "
             f"{_fmt(mass * vx * r, 0)} N, while their magnitudes sum to "
