@@ -28,12 +28,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from terrain_estimation.estimators.skid_steer import (
-    SkidSteerEstimator,
-    SkidSteerEstimatorConfig,
-    _body_sideslip_variance,
-)
+from terrain_estimation.estimators.skid_steer import SkidSteerEstimator, SkidSteerEstimatorConfig
 from terrain_estimation.estimators.skid_steer_consider import ConsiderConfig
+from terrain_estimation.estimators.skid_steer_estimate import body_sideslip_variance
 from terrain_estimation.filters.adaptive import StrongTrackingConfig, suboptimal_fading_factor
 from terrain_estimation.filters.an_stukf import AdaptiveStrongTrackingUKF
 from terrain_estimation.filters.base import GaussianState, nis_gate
@@ -344,7 +341,7 @@ def test_body_sideslip_variance_is_the_array_form():
         v2 = max(float(x[0] ** 2 + x[1] ** 2), floor_sq)  # numpy float64 scalars, as before
         jac = np.array([-x[1], x[0]]) / v2
         expected = min(float(jac @ P[:2, :2] @ jac), math.pi**2)
-        got_v2, got = _body_sideslip_variance(float(x[0]), float(x[1]), P, floor_sq)
+        got_v2, got = body_sideslip_variance(float(x[0]), float(x[1]), P, floor_sq)
         # Scalars against BLAS's (possibly fused) multiply-adds: equal to rounding (of the terms, which
         # cancel on an ill-conditioned P), not bit for bit.
         scale = float(jac @ jac) * float(np.abs(P[:2, :2]).max())
@@ -355,7 +352,7 @@ def test_body_sideslip_variance_is_the_array_form():
         v2 = max(float(x[0] ** 2 + x[1] ** 2), floor_sq)
     assert v2 == math.inf
     with np.errstate(over="ignore"):
-        assert _body_sideslip_variance(7e297, 0.0, np.eye(3), floor_sq) == (math.inf, 0.0)
+        assert body_sideslip_variance(7e297, 0.0, np.eye(3), floor_sq) == (math.inf, 0.0)
 
 
 def test_counter_values_are_the_counters():

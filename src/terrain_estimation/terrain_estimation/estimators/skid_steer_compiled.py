@@ -37,7 +37,7 @@ for bit.
 
 The observer models' kernels (``f``, ``h``, their per-input terms and the unscented moments of ``h``) and
 the constants describing a model to them are in :mod:`.skid_steer_compiled_model`; the small linear
-algebra (Cholesky, triangular and LU solves) is :mod:`terrain_estimation.filters.compiled_linalg`'s,
+algebra (Cholesky, triangular and LU solves, matrix products) is :mod:`terrain_estimation.filters.compiled_linalg`'s,
 shared with the soil-stiffness SCKF and EKF steps.
 """
 
@@ -46,9 +46,10 @@ shared with the soil-stiffness SCKF and EKF steps.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
+from numpy.typing import NDArray
 
 from terrain_estimation.filters.base import Array
 
@@ -57,6 +58,8 @@ __all__ = [
     "STATUS_FALLBACK",
     "CompiledSkidSteerStep",
     "ModelConstants",
+    "StepConstants",
+    "StepInput",
     "model_constants",
     "filter_step",
     "warm_up",
@@ -79,6 +82,7 @@ from terrain_estimation.estimators.skid_steer_compiled_model import (  # noqa: E
     _RTIME,
     _WALK,
     ModelConstants,
+    Terms,
     _mean,
     _measure,
     _moments,
@@ -94,6 +98,8 @@ from terrain_estimation.estimators.skid_steer_compiled_model import (  # noqa: E
 from terrain_estimation.filters.compiled_linalg import (  # noqa: E402 - after the constants the docstring names
     all_finite,
     cholesky_lower,
+    mul,
+    mul_bt,
     solve,
     solve_lower,
     symmetrise,
@@ -104,6 +110,35 @@ from terrain_estimation.jit import compiled  # noqa: E402
 #: instead of raising ZeroDivisionError, and no division carries a zero test. The divisors here are positive
 #: by construction; a NaN propagates to a non-finite result, which hands the step back (STATUS_FALLBACK).
 _kernel = compiled(error_model="numpy")
+
+#: A step's model input for :func:`filter_step`: ``(ω_l, ω_r, a_x, a_y, μ)``, what ``SkidSteerInput`` holds.
+StepInput = tuple[float, float, float, float, float]
+#: An index or integer-description array of :class:`StepConstants`.
+IntArray = NDArray[np.int64]
+
+
+class StepConstants(NamedTuple):
+    """What :func:`filter_step` takes of one estimator's filter, model, vehicle and consider covariance (fixed
+    over its life; :class:`CompiledSkidSteerStep` builds it)."""
+
+    vc: Array  # vehicle constants (skid_steer_compiled_model._CX, ...)
+    wx: Array  # wheel x positions (m)
+    wy: Array  # wheel y positions (m)
+    axle_x: Array  # axle x positions (m)
+    mi: Array  # the model's integer description (ModelConstants.mi)
+    mf: Array  # the model's float description (ModelConstants.mf)
+    q0: Array  # the model's process noise diagonal
+    r0: Array  # the model's measurement noise diagonal
+    unit: Array  # the unit sigma points, one per row
+    Wm: Array  # sigma-point mean weights
+    Wc: Array  # sigma-point covariance weights
+    fc: Array  # the filter constants (_GATE, ...)
+    s_idx: IntArray  # consider: the state's rows in the augmented model
+    c_idx: IntArray  # consider: the considered parameters' rows in the augmented model
+    sqrt_c: Array  # consider: the parameters' standard deviations
+    ami: Array  # consider: the augmented model's mi (the model's own without consider)
+    amf: Array  # consider: the augmented model's mf
+
 
 # Indices of the filter constants ``fc``.
 (
@@ -137,34 +172,23 @@ def filter_step(
     memory: Array,
     fresh: bool,
     z: Array,
-    wl: float,
-    wr: float,
-    ax: float,
-    ay: float,
-    mu: float,
+    u: StepInput,
     dt: float,
-    vc: Array,
-    wx: Array,
-    wy: Array,
-    axle_x: Array,
-    mi: Array,
-    mf: Array,
-    q0: Array,
-    r0: Array,
-    unit: Array,
-    Wm: Array,
-    Wc: Array,
-    fc: Array,
     psi: Array,
     consider: bool,
-    s_idx: Array,
-    c_idx: Array,
-    sqrt_c: Array,
-    ami: Array,
-    amf: Array,
+    constants: StepConstants,
 ) -> tuple[int, int, bool, float, float, float, Array]:  # pragma: no cover - compiled
     """One "adaptive" step of :class:`~terrain_estimation.filters.an_stukf.AdaptiveStrongTrackingUKF` and,
     with ``consider``, one :meth:`ConsiderCovariance.step` after it (module docstring).
+
+    Args:
+        x, P: the prior mean and covariance.
+        memory: the packed adaptive memory (ignored when ``fresh``: the filter's first step).
+        z: the measurement ``[a_x, a_y, r]``.
+        u: the step's model input ``(ω_l, ω_r, a_x, a_y, μ)`` (wheel side, low-passed accelerations).
+        dt: the step (s).
+        psi: the consider sensitivity ``Ψ`` (with ``consider``).
+        constants: the estimator's constants (:class:`StepConstants`).
 
     Returns:
         ``(status, consider_status, accepted, λ, s_q, NIS, buffer)``: the arrays ``x⁺, P⁺, ν, P_zz, P̄,
@@ -172,6 +196,8 @@ def filter_step(
         (:meth:`CompiledSkidSteerStep.unpack`); ``consider_status`` :data:`STATUS_OK` or
         :data:`STATUS_FALLBACK` (run the Python consider step).
     """
+    wl, wr, ax, ay, mu = u
+    vc, wx, wy, axle_x, mi, mf, q0, r0, unit, Wm, Wc, fc, s_idx, c_idx, sqrt_c, ami, amf = constants
     n = x.shape[0]
     p = 3
     bad = (STATUS_FALLBACK, STATUS_FALLBACK, False, 1.0, 1.0, 0.0, np.zeros(0))
@@ -194,29 +220,24 @@ def filter_step(
             for i in range(p):
                 for j in range(p):
                     V_prev[i, j] = memory[i * p + j]
-    roll, floored, mu_fz, limit, divisor, loads, min_rolling = _terms(wl, wr, ax, ay, mu, vc, axle_x)
+    terms = _terms(wl, wr, ax, ay, mu, vc, axle_x)
     # -- UnscentedKalmanFilter._propagate_points
     S, ok = cholesky_lower(P)
     if not ok:
         return bad
     X = _points(x, S, unit)
-    Xp, ok = _process(X, dt, mi, mf, vc, wx, wy, roll, floored, mu_fz, limit, divisor, loads, min_rolling)
+    Xp, ok = _process(X, dt, mi, mf, vc, wx, wy, terms)
     if not ok or not all_finite(Xp):
         return bad
     m = unit.shape[0]
     x_bar = _mean(Xp, Wm)
     D = np.empty((m, n))
+    DwT = np.empty((n, m))  # Dᵀ diag(Wc)
     for i in range(m):
         for a in range(n):
             D[i, a] = Xp[i, a] - x_bar[a]
-    P0 = np.empty((n, n))
-    for a in range(n):
-        for b in range(n):
-            s = 0.0
-            for i in range(m):
-                s += D[i, a] * Wc[i] * D[i, b]
-            P0[a, b] = s
-    P0 = symmetrise(P0)
+            DwT[a, i] = D[i, a] * Wc[i]
+    P0 = symmetrise(mul(DwT, D))
     # -- the model's process noise (its own arithmetic) and R
     k = mi[_K]
     Lq0 = np.empty(n)
@@ -249,9 +270,7 @@ def filter_step(
         for b in range(n):
             Pq[a, b] = P0[a, b] + Q[a, b]
     P_prior = symmetrise(Pq)
-    z_hat, Pzz, Pxz, ok = _moments(
-        x_bar, P_prior, Rs, unit, Wm, Wc, mi, mf, vc, wx, wy, roll, floored, mu_fz, limit, divisor, loads
-    )
+    z_hat, Pzz, Pxz, ok = _moments(x_bar, P_prior, Rs, unit, Wm, Wc, mi, mf, vc, wx, wy, terms)
     if not ok:
         return bad
     nu = np.empty(p)
@@ -298,9 +317,7 @@ def filter_step(
             for b in range(n):
                 Pq[a, b] = lam * P0[a, b] + Q[a, b]
         P_prior = symmetrise(Pq)
-        z_hat, Pzz, Pxz, ok = _moments(
-            x_bar, P_prior, Rs, unit, Wm, Wc, mi, mf, vc, wx, wy, roll, floored, mu_fz, limit, divisor, loads
-        )
+        z_hat, Pzz, Pxz, ok = _moments(x_bar, P_prior, Rs, unit, Wm, Wc, mi, mf, vc, wx, wy, terms)
         if not ok:
             return bad
         for q in range(p):
@@ -318,25 +335,17 @@ def filter_step(
             for a in range(n):
                 rhs[q, a] = Pxz[a, q]
             rhs[q, n] = nu[q]
-        sol = solve_lower(Lz, rhs, False)
-        nis = 0.0
-        for q in range(p):
-            nis += sol[q, n] * sol[q, n]
+        sol = solve_lower(Lz, rhs, False)  # [L⁻¹ P_xzᵀ, L⁻¹ ν]
+        prod = mul(np.ascontiguousarray(sol.T), sol)  # [K P_zz Kᵀ, K ν; ·, NIS]
+        nis = prod[n, n]
         if math.isfinite(nis) and nis <= fc[_GATE]:
             accepted = True
             x_post = np.empty(n)
-            for a in range(n):
-                s = 0.0
-                for q in range(p):
-                    s += sol[q, a] * sol[q, n]
-                x_post[a] = x_bar[a] + s
             Pm = np.empty((n, n))
             for a in range(n):
+                x_post[a] = x_bar[a] + prod[a, n]
                 for b in range(n):
-                    s = 0.0
-                    for q in range(p):
-                        s += sol[q, a] * sol[q, b]
-                    Pm[a, b] = P_prior[a, b] - s
+                    Pm[a, b] = P_prior[a, b] - prod[a, b]
             P_post = symmetrise(Pm)
     # -- noise_adaptation.update_noise_scales
     new_r = r_scale.copy()
@@ -357,13 +366,7 @@ def filter_step(
             mm = (p if adapt_r else 0) + (1 if adapt_q else 0)
             Xs = np.empty((mm, p, p))
             if adapt_r:
-                WR = np.empty((p, p))
-                for a in range(p):
-                    for b in range(p):
-                        s = 0.0
-                        for c in range(p):
-                            s += W[a, c] * R[c, b]
-                        WR[a, b] = s
+                WR = mul(W, R)
                 for i in range(p):
                     for a in range(p):
                         for b in range(p):
@@ -375,40 +378,21 @@ def filter_step(
                     ok_q = False  # the Python step's least-squares _hqh: run it
                 else:
                     Ht = solve_lower(Lp, solve_lower(Lp, Pxz, False), True)
-                    Xq = _quadratic(Ht, Q)
-                    T = np.empty((p, p))
-                    for a in range(p):
-                        for b in range(p):
-                            s = 0.0
-                            for c in range(p):
-                                s += W[a, c] * Xq[c, b]
-                            T[a, b] = s
-                    for a in range(p):
-                        for b in range(p):
-                            s = 0.0
-                            for c in range(p):
-                                s += T[a, c] * W[b, c]
-                            Xs[mm - 1, a, b] = s
+                    Xs[mm - 1] = mul_bt(mul(W, _quadratic(Ht, Q)), W)
             if not ok_q:
                 return bad
-            G = np.empty((mm, mm))
+            flat = Xs.reshape((mm, p * p))
+            G = mul_bt(flat, flat)
+            w_outer = np.empty((p * p, 1))  # (g²/κ) w wᵀ, flattened
+            for a in range(p):
+                for b in range(p):
+                    w_outer[a * p + b, 0] = (g2 / kappa) * (w[a] * w[b])
+            h = mul(flat, w_outer)
             for i in range(mm):
-                for j in range(mm):
-                    s = 0.0
-                    for a in range(p):
-                        for b in range(p):
-                            s += Xs[i, a, b] * Xs[j, a, b]
-                    G[i, j] = s
-            h = np.empty((mm, 1))
-            for i in range(mm):
-                s = 0.0
-                for a in range(p):
-                    for b in range(p):
-                        s += Xs[i, a, b] * ((g2 / kappa) * (w[a] * w[b]))
                 t = 0.0
                 for a in range(p):
                     t += Xs[i, a, a]
-                h[i, 0] = s - t
+                h[i, 0] = h[i, 0] - t
             for i in range(mm):
                 G[i, i] += fc[_RIDGE]
             Lg, ok_g = cholesky_lower(G)
@@ -436,9 +420,8 @@ def filter_step(
     cov = np.zeros((0, 0))
     if consider:
         c_status, psi_out, cov = _consider(
-            x, x_post, psi, accepted, Pzz, Pxz, P_prior, P_post, dt, wl, wr, ax, ay, mu, vc, wx, wy, axle_x,
-            ami, amf, s_idx, c_idx, sqrt_c, fc[_CONSIDER_STEP], roll, floored, mu_fz, limit, divisor, loads,
-            min_rolling,
+            x, x_post, psi, accepted, Pzz, Pxz, P_prior, P_post, dt, vc, wx, wy, ami, amf, s_idx, c_idx, sqrt_c,
+            fc[_CONSIDER_STEP], terms,
         )  # fmt: skip
     # One buffer for every array (numba boxes each returned array at a cost of about 0.7 µs):
     # x⁺ (n) | P⁺ (n²) | ν (p) | P_zz (p²) | P̄ (n²) | P_xz (n p) | memory | s_r (p) | Ψ⁺ (n_s k) | Ψ⁺CΨ⁺ᵀ (n_s²)
@@ -470,28 +453,16 @@ def _consider(
     P_prior: Array,
     P_post: Array,
     dt: float,
-    wl: float,
-    wr: float,
-    ax: float,
-    ay: float,
-    mu: float,
     vc: Array,
     wx: Array,
     wy: Array,
-    axle_x: Array,
     ami: Array,
     amf: Array,
     s_idx: Array,
     c_idx: Array,
     sqrt_c: Array,
     step: float,
-    roll: Array,
-    floored: Array,
-    mu_fz: Array,
-    limit: Array,
-    divisor: Array,
-    loads: Array,
-    min_rolling: float,
+    terms: Terms,
 ) -> tuple[int, Array, Array]:  # pragma: no cover - compiled
     """:meth:`ConsiderCovariance.step` and :meth:`~ConsiderCovariance.covariance` (``Ψ C Ψᵀ``)."""
     n_s = s_idx.shape[0]
@@ -523,7 +494,7 @@ def _consider(
     for j in range(k):
         for i in range(n_aug):
             pts[j + 1, i] += directions[i, j] * eps[j]
-    out, ok = _process(pts, dt, ami, amf, vc, wx, wy, roll, floored, mu_fz, limit, divisor, loads, min_rolling)
+    out, ok = _process(pts, dt, ami, amf, vc, wx, wy, terms)
     if not ok:
         return fail
     new = np.empty((n_s, k))
@@ -540,7 +511,7 @@ def _consider(
                 hp[r, i] = xb[i]
         for j in range(k):
             hp[j + 1, c_idx[j]] += 1.0 * step
-        hz = _measure(hp, ami, amf, vc, wx, wy, roll, floored, mu_fz, limit, divisor, loads)
+        hz = _measure(hp, ami, amf, vc, wx, wy, terms)
         p = 3
         Hc = np.empty((p, k))
         for j in range(k):
@@ -550,31 +521,14 @@ def _consider(
         A, ok2 = solve(P_prior, new)
         if not (ok1 and ok2):
             return fail
-        psi_new = np.empty((n_s, k))
-        for i in range(n_s):
-            for j in range(k):
-                s = 0.0
-                for c in range(n_s):
-                    s += P_post[i, c] * A[c, j]
-                t = 0.0
-                for q in range(p):
-                    t += Kt[q, i] * Hc[q, j]
-                psi_new[i, j] = s - t
-        new = psi_new
+        new = mul(P_post, A) - mul(np.ascontiguousarray(Kt.T), Hc)  # P⁺ P̄⁻¹ Ψ⁻ − K H_c
     if not all_finite(new):
         return fail
     a = np.empty((n_s, k))
     for i in range(n_s):
         for j in range(k):
             a[i, j] = new[i, j] * sqrt_c[j]
-    m = np.empty((n_s, n_s))
-    for i in range(n_s):
-        for j in range(n_s):
-            s = 0.0
-            for c in range(k):
-                s += a[i, c] * a[j, c]
-            m[i, j] = s
-    return STATUS_OK, new, symmetrise(m)
+    return STATUS_OK, new, symmetrise(mul_bt(a, a))
 
 
 # -- the Python side ----------------------------------------------------------------------------
@@ -593,11 +547,7 @@ class CompiledSkidSteerStep:
 
         self.model = model
         self.mc = mc
-        self.vc, self.wx, self.wy, self.axle_x = _vehicle_constants(model)
         ps = filt.ukf.point_set(mc.n)
-        self.unit = np.ascontiguousarray(ps.unit, dtype=np.float64)
-        self.Wm = np.ascontiguousarray(ps.Wm, dtype=np.float64)
-        self.Wc = np.ascontiguousarray(ps.Wc, dtype=np.float64)
         st = filt._st
         noise = filt.noise
         gate = filt.ukf.gate_threshold
@@ -608,7 +558,7 @@ class CompiledSkidSteerStep:
         else:
             thr = math.inf
         c2, kappa = huber_clip(3, noise.clip_probability) if noise.clip_probability is not None else (0.0, 1.0)
-        self.fc = np.array(
+        fc = np.array(
             [
                 math.inf if gate is None else gate,
                 st.rho,
@@ -642,15 +592,21 @@ class CompiledSkidSteerStep:
             self.amc = amc
             self.s_idx = np.ascontiguousarray(consider._s, dtype=np.int64)
             self.c_idx = np.ascontiguousarray(consider._c, dtype=np.int64)
-            self.sqrt_c = np.sqrt(np.diag(consider._C)).astype(np.float64)
+            sqrt_c = np.sqrt(np.diag(consider._C)).astype(np.float64)
         else:
             self.s_idx = np.zeros(0, dtype=np.int64)
             self.c_idx = np.zeros(0, dtype=np.int64)
-            self.sqrt_c = np.zeros(0)
+            sqrt_c = np.zeros(0)
+        aug = mc if self.amc is None else self.amc
+        # The filter_step constants of this filter, model and consider covariance, in StepConstants' order.
+        vehicle = _vehicle_constants(model)
+        model_arrays = (mc.mi, mc.mf, mc.q0, mc.r0)
+        unit, Wm, Wc = (np.ascontiguousarray(a, dtype=np.float64) for a in (ps.unit, ps.Wm, ps.Wc))
+        self.constants = StepConstants(
+            *vehicle, *model_arrays, unit, Wm, Wc, fc, self.s_idx, self.c_idx, sqrt_c, aug.mi, aug.mf
+        )
         self._no_memory = np.zeros(0)
         self._no_psi = np.zeros((0, 0))
-        self._no_mi = mc.mi
-        self._no_mf = mc.mf
 
     @classmethod
     def for_estimator(cls, filt: Any, model: Any, consider: Any) -> CompiledSkidSteerStep | None:
@@ -685,41 +641,13 @@ class CompiledSkidSteerStep:
         dt: float,
         psi: Array | None,
     ) -> tuple[Any, ...]:
-        """:func:`filter_step` on one step's values (``psi`` None: no consider covariance)."""
-        mc = self.mc
-        amc = self.amc
-        return filter_step(
-            x,
-            P,
-            self._no_memory if memory is None else memory,
-            memory is None,
-            z,
-            wl,
-            wr,
-            ax,
-            ay,
-            mu,
-            dt,
-            self.vc,
-            self.wx,
-            self.wy,
-            self.axle_x,
-            mc.mi,
-            mc.mf,
-            mc.q0,
-            mc.r0,
-            self.unit,
-            self.Wm,
-            self.Wc,
-            self.fc,
-            self._no_psi if psi is None else psi,
-            psi is not None,
-            self.s_idx,
-            self.c_idx,
-            self.sqrt_c,
-            mc.mi if amc is None else amc.mi,
-            mc.mf if amc is None else amc.mf,
-        )
+        """:func:`filter_step` on one step's values (``memory`` None: the first step; ``psi`` None: no consider
+        covariance)."""
+        fresh = memory is None
+        memory = self._no_memory if memory is None else memory
+        consider = psi is not None
+        psi = self._no_psi if psi is None else psi
+        return filter_step(x, P, memory, fresh, z, (wl, wr, ax, ay, mu), dt, psi, consider, self.constants)
 
     def unpack(self, buf: Array) -> tuple[Array, ...]:
         """``(x⁺, P⁺, ν, P_zz, P̄, P_xz, memory, s_r, Ψ⁺, Ψ⁺CΨ⁺ᵀ)``: views of :func:`filter_step`'s buffer."""

@@ -25,14 +25,18 @@ from typing import Any
 import numpy as np
 
 from terrain_estimation.filters.base import Array
-from terrain_estimation.filters.compiled_linalg import all_finite, cholesky_lower, solve_lower, symmetrise
+from terrain_estimation.filters.compiled_linalg import all_finite, cholesky_lower, mul, mul_bt, solve_lower, symmetrise
 from terrain_estimation.jit import compiled
 
-__all__ = ["ModelConstants", "model_constants"]
+__all__ = ["ModelConstants", "Terms", "model_constants"]
 
 #: numba's numpy error model (as :mod:`.skid_steer_compiled`'s kernels): a float division by zero gives inf or
 #: NaN instead of raising; a NaN propagates to a non-finite result, which hands the step back to Python.
 _kernel = compiled(error_model="numpy")
+
+#: A step's per-input terms, as :func:`_terms` returns them: per-wheel ``R ω``, floored ``V_r``, ``μ F_z``,
+#: ``3 μ F_z``, its divisor, ``F_z`` (arrays of the 2N wheels) and the slowest side's floored rolling speed.
+Terms = tuple[Array, Array, Array, Array, Array, Array, float]
 
 # Indices of the vehicle constants ``vc``.
 _CX, _CA, _MASS, _IZ, _RADIUS, _FLOOR, _G, _H, _TRACK, _S1, _S2, _D, _NAX, _KAPPA_V, _GAIN, _QSTEP = range(16)
@@ -45,7 +49,7 @@ _LO, _HI, _TAU, _RMAX, _RSPEED, _RNOM, _RTIME, _RSTD, _WALK = range(9)
 @_kernel
 def _terms(
     wl: float, wr: float, ax: float, ay: float, mu: float, vc: Array, axle_x: Array
-) -> tuple[Array, Array, Array, Array, Array, Array, float]:  # pragma: no cover - compiled
+) -> Terms:  # pragma: no cover - compiled
     """``SkidSteerObserverModel._terms`` and ``_loads``: per-wheel ``R ω``, ``V_r``, ``μ F_z``, ``3 μ F_z``,
     its divisor, ``F_z``, and the slowest side's floored rolling speed, in the Python forms' order."""
     radius = vc[_RADIUS]
@@ -96,21 +100,10 @@ def _multipliers(x: Array, mi: Array, mf: Array, out: Array) -> None:  # pragma:
 
 @_kernel
 def _force_sums(
-    vx: float,
-    vy: float,
-    r: float,
-    mult: Array,
-    scaled: bool,
-    roll: Array,
-    floored: Array,
-    mu_fz: Array,
-    limit: Array,
-    divisor: Array,
-    vc: Array,
-    wx: Array,
-    wy: Array,
+    vx: float, vy: float, r: float, mult: Array, scaled: bool, terms: Terms, vc: Array, wx: Array, wy: Array
 ) -> tuple[float, float, float]:  # pragma: no cover - compiled
     """``[ΣF_x, ΣF_y, M_z]`` of one point: ``scaled_force_sums`` (``scaled``) or the observer's ``_force_sums``."""
+    roll, floored, mu_fz, limit, divisor, _, _ = terms
     if scaled:
         s0 = vc[_CX] * mult[2]
         s1 = -vc[_CA] * mult[1]
@@ -183,25 +176,13 @@ def _resistance_coefficient(x: Array, n: int, mf: Array) -> float:  # pragma: no
 
 @_kernel
 def _process(
-    X: Array,
-    dt: float,
-    mi: Array,
-    mf: Array,
-    vc: Array,
-    wx: Array,
-    wy: Array,
-    roll: Array,
-    floored: Array,
-    mu_fz: Array,
-    limit: Array,
-    divisor: Array,
-    loads: Array,
-    min_rolling: float,
+    X: Array, dt: float, mi: Array, mf: Array, vc: Array, wx: Array, wy: Array, terms: Terms
 ) -> tuple[Array, bool]:  # pragma: no cover - compiled
     """``f`` of every point (rows of ``X``): the model's Euler sub-steps, then its scale clipping.
 
     Returns ``(X⁺, ok)``; ``ok`` False when a step needs more than ``max_substeps`` sub-steps.
     """
+    _, _, _, _, _, loads, min_rolling = terms
     m, n = X.shape
     out = X.copy()
     plain = mi[_PLAIN] == 1
@@ -237,7 +218,7 @@ def _process(
         c0, c1, c2 = X[i, 0], X[i, 1], X[i, 2]
         coefficient = _resistance_coefficient(X[i], n, mf) if res else 0.0
         for _ in range(n_sub):
-            fx, fy, mz = _force_sums(c0, c1, c2, mult[i], k > 0, roll, floored, mu_fz, limit, divisor, vc, wx, wy)
+            fx, fy, mz = _force_sums(c0, c1, c2, mult[i], k > 0, terms, vc, wx, wy)
             if plain:
                 r0 = fx / mass + c1 * c2
                 r1 = fy / mass + -c0 * c2
@@ -286,20 +267,10 @@ def _process(
 
 @_kernel
 def _measure(
-    X: Array,
-    mi: Array,
-    mf: Array,
-    vc: Array,
-    wx: Array,
-    wy: Array,
-    roll: Array,
-    floored: Array,
-    mu_fz: Array,
-    limit: Array,
-    divisor: Array,
-    loads: Array,
+    X: Array, mi: Array, mf: Array, vc: Array, wx: Array, wy: Array, terms: Terms
 ) -> Array:  # pragma: no cover - compiled
     """``h`` of every point: ``[ΣF_x/m, ΣF_y/m, r]`` with the points' scales and resistance."""
+    loads = terms[5]
     m, n = X.shape
     Z = np.empty((m, 3))
     mult = np.empty(3)
@@ -308,9 +279,7 @@ def _measure(
     mass = vc[_MASS]
     for i in range(m):
         _multipliers(X[i], mi, mf, mult)
-        fx, fy, mz = _force_sums(
-            X[i, 0], X[i, 1], X[i, 2], mult, k > 0, roll, floored, mu_fz, limit, divisor, vc, wx, wy
-        )
+        fx, fy, mz = _force_sums(X[i, 0], X[i, 1], X[i, 2], mult, k > 0, terms, vc, wx, wy)
         if res:
             coefficient = _resistance_coefficient(X[i], n, mf)
             rfx, _ = _resistance_sums(X[i, 0], X[i, 2], coefficient, mf[_RSPEED], loads, wy)
@@ -325,13 +294,10 @@ def _measure(
 def _points(x: Array, S: Array, unit: Array) -> Array:  # pragma: no cover - compiled
     """``x + unit Sᵀ``: the sigma points, one per row."""
     m, n = unit.shape
-    X = np.empty((m, n))
+    X = mul_bt(unit, S)
     for i in range(m):
         for a in range(n):
-            s = 0.0
-            for b in range(n):
-                s += unit[i, b] * S[a, b]
-            X[i, a] = x[a] + s
+            X[i, a] = x[a] + X[i, a]
     return X
 
 
@@ -360,12 +326,7 @@ def _moments(
     vc: Array,
     wx: Array,
     wy: Array,
-    roll: Array,
-    floored: Array,
-    mu_fz: Array,
-    limit: Array,
-    divisor: Array,
-    loads: Array,
+    terms: Terms,
 ) -> tuple[Array, Array, Array, bool]:  # pragma: no cover - compiled
     """``UnscentedKalmanFilter._moments``: ``ẑ, P_zz, P_xz``; False where the Python step does more."""
     n = x.shape[0]
@@ -379,7 +340,7 @@ def _moments(
     for i in range(m):
         for a in range(n):
             Xs[i, a] = x[a] + dX[i, a]
-    Z = _measure(Xs, mi, mf, vc, wx, wy, roll, floored, mu_fz, limit, divisor, loads)
+    Z = _measure(Xs, mi, mf, vc, wx, wy, terms)
     if not all_finite(Z):
         return np.zeros(3), np.zeros((3, 3)), np.zeros((n, 3)), False
     z_hat = _mean(Z, Wm)
@@ -390,20 +351,11 @@ def _moments(
         for q in range(p):
             dZ[i, q] = Z[i, q] - z_hat[q]
             dZw[q, i] = dZ[i, q] * Wc[i]
-    Pzz = np.empty((p, p))
+    Pzz = mul(dZw, dZ)
     for a in range(p):
         for b in range(p):
-            s = 0.0
-            for i in range(m):
-                s += dZw[a, i] * dZ[i, b]
-            Pzz[a, b] = s + (Rdiag[a] * Rdiag[a] if a == b else 0.0)
-    Pxz = np.empty((n, p))
-    for q in range(p):
-        for a in range(n):
-            s = 0.0
-            for i in range(m):
-                s += dZw[q, i] * dX[i, a]
-            Pxz[a, q] = s
+            Pzz[a, b] = Pzz[a, b] + (Rdiag[a] * Rdiag[a] if a == b else 0.0)
+    Pxz = np.ascontiguousarray(mul(dZw, dX).T)
     return z_hat, symmetrise(Pzz), Pxz, True
 
 
@@ -439,22 +391,7 @@ def _trace_w(W: Array, M: Array) -> float:  # pragma: no cover - compiled
 @_kernel
 def _quadratic(Ht: Array, Q: Array) -> Array:  # pragma: no cover - compiled
     """``Htᵀ Q Ht``."""
-    n, p = Ht.shape
-    T = np.empty((p, n))
-    for a in range(p):
-        for b in range(n):
-            s = 0.0
-            for k in range(n):
-                s += Ht[k, a] * Q[k, b]
-            T[a, b] = s
-    out = np.empty((p, p))
-    for a in range(p):
-        for b in range(p):
-            s = 0.0
-            for k in range(n):
-                s += T[a, k] * Ht[k, b]
-            out[a, b] = s
-    return out
+    return mul(mul(np.ascontiguousarray(Ht.T), Q), Ht)
 
 
 # -- the Python side ----------------------------------------------------------------------------

@@ -35,6 +35,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from terrain_estimation.checks import check_fields
 from terrain_estimation.estimators.skid_steer_consider import ConsiderConfig
 from terrain_estimation.estimators.skid_steer_wheels import INTERPOLATIONS, Interpolation
 from terrain_estimation.estimators.skid_steer_zupt import ZuptConfig
@@ -240,10 +241,7 @@ class SkidSteerEstimatorConfig:
             "min_wheel_speed_age_s",
             "process_accel_std",
         )
-        for name in positive:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be finite and > 0, got {value}")
+        check_fields(self, positive)
         non_negative = (
             "min_yaw_rate",
             "min_sideslip_speed",
@@ -254,10 +252,7 @@ class SkidSteerEstimatorConfig:
             "tire_moment_std",
             "odom_correlation_time_s",
         )
-        for name in non_negative:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+        check_fields(self, non_negative, rule="non_negative")
         age = self.max_wheel_speed_age_s
         if age is not None and not (math.isfinite(age) and age > 0.0):
             raise ValueError(f"max_wheel_speed_age_s must be None or finite and > 0, got {age}")
@@ -318,24 +313,18 @@ class SkidSteerEstimatorConfig:
                 the model's own choice, with scale states only).
         """
         common: dict[str, Any] = {"q0_diag": self.q0_diag, "r0_diag": self.r0_diag, "q_step_dt": self.q_step_dt}
+        # The brush models' Euler sub-steps.
+        brush: dict[str, Any] = {
+            "substeps": self.substeps,
+            "max_euler_gain": self.max_euler_gain,
+            "max_substeps": self.max_substeps,
+            **common,
+        }
         if self.model == "brush":
-            return SkidSteerObserverModel(
-                self.vehicle,
-                substeps=self.substeps,
-                max_euler_gain=self.max_euler_gain,
-                max_substeps=self.max_substeps,
-                **common,
-            )
+            return SkidSteerObserverModel(self.vehicle, **brush)
         scales = self.tire_scales if self.model.endswith("_scales") else TireScaleConfig(states=())
         if self.model.startswith("brush"):
-            return SkidSteerTireScaleModel(
-                self.vehicle,
-                scales,
-                substeps=self.substeps,
-                max_euler_gain=self.max_euler_gain,
-                max_substeps=self.max_substeps,
-                **common,
-            )
+            return SkidSteerTireScaleModel(self.vehicle, scales, **brush)
         return SkidSteerKinematicModel(
             self.vehicle,
             scales,

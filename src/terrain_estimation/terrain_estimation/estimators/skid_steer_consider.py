@@ -60,12 +60,14 @@ from typing import Any
 
 import numpy as np
 
+from terrain_estimation.checks import check_non_negative
 from terrain_estimation.filters.base import Array
 from terrain_estimation.models.skid_steer_scales import (
     RESISTANCE_NAME,
     STATE_NAMES,
     TireScaleConfig,
     _ScaledModelBase,
+    state_names,
 )
 
 __all__ = ["CONSIDER_NAMES", "ConsiderConfig", "ConsiderCovariance"]
@@ -107,15 +109,10 @@ class ConsiderConfig:
     step: float = 1e-5
 
     def __post_init__(self) -> None:
-        names = tuple(str(p) for p in self.parameters)
-        unknown = [p for p in names if p not in CONSIDER_NAMES]
-        if unknown or len(set(names)) != len(names):
-            raise ValueError(f"consider.parameters must be distinct names of {CONSIDER_NAMES}, got {self.parameters!r}")
-        object.__setattr__(self, "parameters", tuple(p for p in CONSIDER_NAMES if p in names))
+        # CONSIDER_NAMES is STATE_NAMES: the names and their order.
+        object.__setattr__(self, "parameters", state_names("consider.parameters", self.parameters))
         for name in ("scale_std", "resistance_rms"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"consider.{name} must be finite and >= 0, got {value}")
+            check_non_negative("consider", name, getattr(self, name))
         if not (math.isfinite(self.step) and 0.0 < self.step <= 1e-2):
             raise ValueError(f"consider.step must be in (0, 0.01], got {self.step}")
 

@@ -33,6 +33,8 @@ import math
 from collections import deque
 from typing import Literal
 
+from terrain_estimation.checks import check_positive
+
 __all__ = ["WheelSpeedBuffer", "Interpolation", "INTERPOLATIONS", "WheelSpeeds"]
 
 Interpolation = Literal["linear", "hold"]
@@ -72,9 +74,8 @@ class WheelSpeedBuffer:
             raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}")
         if max_age_s is not None and not (math.isfinite(max_age_s) and max_age_s > 0.0):
             raise ValueError(f"max_age_s must be None or finite and > 0, got {max_age_s}")
-        for name, value in (("age_periods", age_periods), ("min_age_s", min_age_s)):
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be finite and > 0, got {value}")
+        check_positive("WheelSpeedBuffer", "age_periods", age_periods)
+        check_positive("WheelSpeedBuffer", "min_age_s", min_age_s)
         if capacity < 2:
             raise ValueError(f"capacity must be >= 2, got {capacity}")
         if period_window < 1:

@@ -30,12 +30,12 @@ Joseph form so the covariance stays symmetric positive semi-definite.
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
+from terrain_estimation.checks import check_fields, check_int_at_least
 from terrain_estimation.filters.base import GaussianState
 
 __all__ = ["ZuptConfig", "StationaryDetector", "zero_velocity_update"]
@@ -68,12 +68,8 @@ class ZuptConfig:
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, bool):
             raise ValueError(f"ZuptConfig.enabled must be a bool, got {self.enabled!r}")
-        for name in ("wheel_speed", "window_s", "accel_std", "gyro_std", "velocity_std", "yaw_rate_std"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"ZuptConfig.{name} must be finite and > 0, got {value}")
-        if isinstance(self.min_samples, bool) or not isinstance(self.min_samples, int) or self.min_samples < 2:
-            raise ValueError(f"ZuptConfig.min_samples must be an int >= 2, got {self.min_samples!r}")
+        check_fields(self, ("wheel_speed", "window_s", "accel_std", "gyro_std", "velocity_std", "yaw_rate_std"))
+        check_int_at_least("ZuptConfig", "min_samples", self.min_samples, 2)
 
 
 class StationaryDetector:

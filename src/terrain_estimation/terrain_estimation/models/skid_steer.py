@@ -40,6 +40,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from terrain_estimation.checks import check_fields, check_finite
+
 Array = NDArray[np.float64]
 
 __all__ = [
@@ -128,13 +130,8 @@ class SkidSteerParams:
             "gravity",
             "rolling_speed_floor",
         )
-        for name in positive:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"SkidSteerParams.{name} must be finite and > 0, got {value}")
-        offset = self.cm_ahead_of_middle_axle
-        if not math.isfinite(offset):
-            raise ValueError(f"SkidSteerParams.cm_ahead_of_middle_axle must be finite, got {offset}")
+        check_fields(self, positive)
+        check_finite("SkidSteerParams", "cm_ahead_of_middle_axle", self.cm_ahead_of_middle_axle)
         if self.axle_x is not None:
             try:
                 xs = tuple(float(v) for v in self.axle_x)

@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from terrain_estimation.checks import check_fields, check_non_negative, check_positive
 from terrain_estimation.filters.base import Array
 from terrain_estimation.models.skid_steer import SkidSteerParams
 from terrain_estimation.models.skid_steer_observer import DEFAULT_Q0_DIAG, DEFAULT_R0_DIAG, SkidSteerInput
@@ -93,10 +94,7 @@ class KinematicInput:
     def __post_init__(self) -> None:
         if not isinstance(self.wheels, SkidSteerInput):
             raise ValueError(f"KinematicInput.wheels must be a SkidSteerInput, got {type(self.wheels).__name__}")
-        for name in ("ax", "ay", "yaw_acceleration"):
-            value = getattr(self, name)
-            if not math.isfinite(value):
-                raise ValueError(f"KinematicInput.{name} must be finite, got {value}")
+        check_fields(self, ("ax", "ay", "yaw_acceleration"), rule="finite")
 
 
 class SkidSteerKinematicModel(_ScaledModelBase):
@@ -146,12 +144,10 @@ class SkidSteerKinematicModel(_ScaledModelBase):
             max_euler_gain=None,
             max_substeps=1,
         )
-        if not (math.isfinite(process_accel_std) and process_accel_std > 0.0):
-            raise ValueError(f"process_accel_std must be finite and > 0, got {process_accel_std}")
-        if not (math.isfinite(tire_model_std) and tire_model_std >= 0.0):
-            raise ValueError(f"tire_model_std must be finite and >= 0, got {tire_model_std}")
-        if not (math.isfinite(tire_moment_std) and tire_moment_std >= 0.0):
-            raise ValueError(f"tire_moment_std must be finite and >= 0, got {tire_moment_std}")
+        owner = type(self).__name__
+        check_positive(owner, "process_accel_std", process_accel_std)
+        check_non_negative(owner, "tire_model_std", tire_model_std)
+        check_non_negative(owner, "tire_moment_std", tire_moment_std)
         self.process_accel_std = float(process_accel_std)
         self.tire_model_std = float(tire_model_std)
         self.tire_moment_std = float(tire_moment_std)

@@ -96,6 +96,7 @@ from typing import Any
 
 import numpy as np
 
+from terrain_estimation.checks import check_fields
 from terrain_estimation.filters.base import Array
 from terrain_estimation.models.skid_steer import (
     SkidSteerParams,
@@ -151,10 +152,7 @@ class SkidSteerInput:
     def __post_init__(self) -> None:
         isfinite = math.isfinite
         if not (isfinite(self.omega_left) and isfinite(self.omega_right) and isfinite(self.ax) and isfinite(self.ay)):
-            for name in ("omega_left", "omega_right", "ax", "ay"):
-                value = getattr(self, name)
-                if not isfinite(value):
-                    raise ValueError(f"SkidSteerInput.{name} must be finite, got {value}")
+            check_fields(self, ("omega_left", "omega_right", "ax", "ay"), rule="finite")
         mu = self.friction
         if mu is not None and not (math.isfinite(mu) and mu > 0.0):
             raise ValueError(f"SkidSteerInput.friction must be None or finite and > 0, got {mu}")
@@ -360,10 +358,12 @@ class SkidSteerObserverModel:
         shape = xs.shape[:-1]
         return sums[0].reshape(shape)[()], sums[1].reshape(shape)[()], sums[2].reshape(shape)[()]
 
-    def _substeps(self, terms: _StepTerms, dt: float) -> int:
+    def _substeps(self, terms: _StepTerms, dt: float, stiffness_scale: float = 1.0) -> int:
+        """Euler sub-steps of a step of ``dt``; ``stiffness_scale``: the largest multiplier of the slip
+        stiffnesses (a scale model's points), which speeds up the relaxation alike."""
         if self.max_euler_gain is None:
             return self.substeps
-        rate = self.relaxation_rate_per_speed / terms.min_rolling_speed
+        rate = self.relaxation_rate_per_speed * stiffness_scale / terms.min_rolling_speed
         n = max(self.substeps, math.ceil(dt * rate / self.max_euler_gain - 1e-9))
         if n > self.max_substeps:
             raise ValueError(

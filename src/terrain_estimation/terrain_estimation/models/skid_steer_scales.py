@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from terrain_estimation.checks import check_fields
 from terrain_estimation.filters.base import Array
 from terrain_estimation.models.skid_steer import SkidSteerParams
 from terrain_estimation.models.skid_steer_observer import (
@@ -62,6 +63,7 @@ __all__ = [
     "TireScaleConfig",
     "SkidSteerTireScaleModel",
     "scaled_force_sums",
+    "state_names",
 ]
 
 #: The tire parameters that may carry a scale state, in state order.
@@ -70,6 +72,15 @@ SCALE_NAMES: tuple[str, ...] = ("friction", "cornering_stiffness", "longitudinal
 RESISTANCE_NAME = "motion_resistance"
 #: Every name :attr:`TireScaleConfig.states` accepts, in state order.
 STATE_NAMES: tuple[str, ...] = (*SCALE_NAMES, RESISTANCE_NAME)
+
+
+def state_names(what: str, value: Any) -> tuple[str, ...]:
+    """``value``, distinct names of :data:`STATE_NAMES`, in state order; ValueError naming ``what`` otherwise."""
+    names = tuple(str(s) for s in value)
+    unknown = [s for s in names if s not in STATE_NAMES]
+    if unknown or len(set(names)) != len(names):
+        raise ValueError(f"{what} must be distinct names of {STATE_NAMES}, got {value!r}")
+    return tuple(s for s in STATE_NAMES if s in names)
 
 
 @dataclass(frozen=True)
@@ -114,25 +125,16 @@ class TireScaleConfig:
     resistance_speed: float = 0.1
 
     def __post_init__(self) -> None:
-        names = tuple(str(s) for s in self.states)
-        unknown = [s for s in names if s not in STATE_NAMES]
-        if unknown or len(set(names)) != len(names):
-            raise ValueError(f"TireScaleConfig.states must be distinct names of {STATE_NAMES}, got {self.states!r}")
-        object.__setattr__(self, "states", tuple(s for s in STATE_NAMES if s in names))
-        for name in ("walk_std", "initial_std", "reversion_time_s", "resistance_nominal", "resistance_std"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"TireScaleConfig.{name} must be finite and >= 0, got {value}")
+        object.__setattr__(self, "states", state_names("TireScaleConfig.states", self.states))
+        non_negative = ("walk_std", "initial_std", "reversion_time_s", "resistance_nominal", "resistance_std")
+        check_fields(self, non_negative, rule="non_negative")
         lo, hi = self.min_scale, self.max_scale
         if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 < lo < 1.0 < hi):
             raise ValueError(
                 f"TireScaleConfig.min_scale and max_scale must satisfy 0 < min < 1 < max, got {lo} and {hi}"
             )
 
-        for name in ("resistance_time_s", "resistance_speed"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"TireScaleConfig.{name} must be finite and > 0, got {value}")
+        check_fields(self, ("resistance_time_s", "resistance_speed"))
         if not (math.isfinite(self.resistance_max) and self.resistance_max > self.resistance_nominal):
             raise ValueError(
                 f"TireScaleConfig.resistance_max must be finite and > resistance_nominal "
@@ -417,7 +419,7 @@ class SkidSteerTireScaleModel(_ScaledModelBase):
         terms = self.base._terms(u)
         mult = self._multipliers(rows)
         stiffest = 1.0 if mult is None else float(np.max(mult[1:]))
-        n_sub = self._substeps(terms, dt, stiffest)
+        n_sub = self.base._substeps(terms, dt, stiffest)
         delta = dt / n_sub
         p = self.params
         c = rows[:3]
@@ -434,19 +436,6 @@ class SkidSteerTireScaleModel(_ScaledModelBase):
             c += delta * rate
         self._clip_scales(rows, dt)
         return np.ascontiguousarray(rows.T).reshape(xs.shape)
-
-    def _substeps(self, terms: _StepTerms, dt: float, stiffness_scale: float) -> int:
-        base = self.base
-        if base.max_euler_gain is None:
-            return base.substeps
-        rate = base.relaxation_rate_per_speed * stiffness_scale / terms.min_rolling_speed
-        n = max(base.substeps, math.ceil(dt * rate / base.max_euler_gain - 1e-9))
-        if n > base.max_substeps:
-            raise ValueError(
-                f"step of {dt} s needs {n} Euler sub-steps at rolling speed {terms.min_rolling_speed} m/s "
-                f"(max_substeps = {base.max_substeps})"
-            )
-        return n
 
     def process_noise_sqrt(self, x: Array, u: Any, dt: float) -> Array:
         """``diag(√(q0 dt/q_step_dt), walk_std √dt …)``: B.10 base noise and the scales' random walk."""
