@@ -29,6 +29,12 @@ What it guarantees:
 * **no silent gaps** — a job that raises (or whose worker dies) fails the
   whole ``map`` with :class:`ExperimentError` naming every failed job and the
   first traceback: a results page is never written from part of its runs;
+* **isolated plans** — :meth:`Runner.run_each` is the same plan with every
+  job isolated instead: each job's result or failure (with its reason) as it
+  finishes, the others going on (``validate-sim2real``: a bag whose diagnosis
+  fails is a result to score);
+* **worker set-up** — :meth:`Runner.setup_workers` runs a function once in
+  every worker (a pool's ``initializer``: warm-ups, process-wide settings);
 * **accounting** — wall time, and CPU time of this process plus that of every
   job in its worker (``time.process_time``), over every ``map`` of the runner.
 
@@ -54,7 +60,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -139,6 +145,59 @@ class Runner:
         end = self._ended[1] if self._ended is not None else time.process_time()
         return end - self._cpu0 + self._worker_cpu
 
+    @property
+    def worker_cpu_s(self) -> float:
+        """CPU seconds of the jobs run in workers (0 when they run in this process: they are in ``cpu_s``)."""
+        return self._worker_cpu
+
+    def setup_workers(self, fn: Callable[..., Any], *args: Any) -> None:
+        """Run ``fn(*args)`` once in every worker process before the plans (a pool's ``initializer``: imports,
+        warm-ups, process-wide settings the jobs read); a worker restarted after a crash runs it again. Without a
+        cluster (``jobs == 1``) it runs in this process.
+        """
+        if self._engine is None:
+            if self.distributed:
+                raise ExperimentError("the runner is not started: use it as a context manager")
+            fn(*args)
+        else:
+            self._engine.setup_workers(fn, *args)
+
+    def run_each(
+        self,
+        fn: Callable[[S], R],
+        plan: Sequence[S],
+        *,
+        weight: Callable[[S], float] | None = None,
+        key: Callable[[S], str] | None = None,
+        what: str | None = None,
+    ) -> Iterator[tuple[int, TaskResult[R]]]:
+        """Every job of ``plan``, isolated, heaviest first: ``(its index in plan, its TaskResult)`` as each finishes.
+
+        The batch engine's isolated mode: a job that raises, or whose worker dies, is a failed
+        :class:`~terrain_analysis.batch.engine.TaskResult` with its reason, and the other jobs go on (for plans
+        whose failures are results to report, one per bag). Arguments as for :meth:`map`.
+        """
+        weights = [float(weight(s)) if weight is not None else 1.0 for s in plan]
+        keys = [f"{i}:{key(s)}" if key is not None else str(i) for i, s in enumerate(plan)]
+        index = {k: i for i, k in enumerate(keys)}
+        order = sorted(range(len(plan)), key=lambda i: -weights[i])  # stable: ties keep plan order
+        bar = Progress(len(plan), what or self.what, total_weight=sum(weights) or None) if self.progress else None
+        if self._engine is None:
+            if self.distributed:
+                raise ExperimentError("the runner is not started: use it as a context manager")
+            for i in order:
+                res = run_isolated(keys[i], fn, (plan[i],))
+                self.n_tasks += 1
+                if bar is not None:
+                    bar.update(res.ok, weights[i], note="" if res.ok else f"FAILED {keys[i]}")
+                yield i, res
+        else:
+            tasks = [Task(keys[i], fn, (plan[i],), weights[i] or 1.0) for i in order]
+            for res in self._engine.run(tasks, progress=bar):
+                self._worker_cpu += res.cpu_s
+                self.n_tasks += 1
+                yield index[res.key], res
+
     def map(
         self,
         fn: Callable[[S], R],
@@ -161,33 +220,15 @@ class Runner:
         Raises:
             ExperimentError: a job raised, or its worker died.
         """
-        weights = [float(weight(s)) if weight is not None else 1.0 for s in plan]
-        keys = [f"{i}:{key(s)}" if key is not None else str(i) for i, s in enumerate(plan)]
-        order = sorted(range(len(plan)), key=lambda i: -weights[i])  # stable: ties keep plan order
-        bar = Progress(len(plan), what or self.what, total_weight=sum(weights) or None) if self.progress else None
-        results: dict[str, TaskResult[Any]] = {}
-        if self._engine is None:
-            if self.distributed:
-                raise ExperimentError("the runner is not started: use it as a context manager")
-            for i in order:
-                res = run_isolated(keys[i], fn, (plan[i],))
-                results[keys[i]] = res
-                if bar is not None:
-                    bar.update(res.ok, weights[i], note="" if res.ok else f"FAILED {keys[i]}")
-        else:
-            tasks = [Task(keys[i], fn, (plan[i],), weights[i] or 1.0) for i in order]
-            for res in self._engine.run(tasks, progress=bar):
-                results[res.key] = res
-                self._worker_cpu += res.cpu_s
-        self.n_tasks += len(plan)
-        failed = [results[k] for k in keys if not results[k].ok]
+        results = dict(self.run_each(fn, plan, weight=weight, key=key, what=what))
+        failed = [results[i] for i in range(len(plan)) if not results[i].ok]
         if failed:
             first = failed[0]
             raise ExperimentError(
                 f"{len(failed)} of {len(plan)} {what or self.what} failed ({', '.join(r.key for r in failed[:10])}"
                 f"{', …' if len(failed) > 10 else ''}): {first.error}\n{first.traceback}"
             )
-        return [results[k].value for k in keys]  # type: ignore[misc]
+        return [results[i].value for i in range(len(plan))]  # type: ignore[misc]
 
 
 def run_plan(

@@ -6,6 +6,9 @@
   one worker process per core or on a running cluster (``--scheduler``).
   Any long job of the project can use it (``validate-sim2real``, the
   ``reproduce-*`` tools).
+* :mod:`~terrain_analysis.batch.worker_setup` — a function run once in every
+  worker, including restarted ones (``Engine.setup_workers``: a pool's
+  ``initializer``).
 * :mod:`~terrain_analysis.batch.bags` — what ``terrain-batch`` does with one
   bag: vehicle detection, estimation and/or diagnosis, the resumability
   fingerprint and the summary row.

@@ -48,6 +48,7 @@ import socket
 import sys
 import time
 import traceback
+import uuid
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import IO, Any, Generic, TypeVar
@@ -331,6 +332,20 @@ class Engine:
                 f"{self.address}: {self.n_workers()} worker(s) after {timeout_s:g} s, {n} wanted"
             ) from exc
 
+    def setup_workers(self, fn: Callable[..., Any], *args: Any, name: str = "setup") -> None:
+        """Run ``fn(*args)`` once in every worker process, now and in any worker that joins later.
+
+        The ``initializer`` of a ``multiprocessing.Pool``: imports and warm-ups before the first task, process-wide
+        settings the tasks read. A worker the nanny restarts after a crash runs it again before its next task.
+        A second call with the same ``name`` replaces the first (and runs on every worker again).
+
+        Raises:
+            Exception: what ``fn`` raised in a worker.
+        """
+        from terrain_analysis.batch.worker_setup import SetupPlugin
+
+        self.client.register_plugin(SetupPlugin(fn, tuple(args)), name=f"terrain-analysis-{name}")
+
     def run(
         self,
         tasks: Sequence[Task],
@@ -350,9 +365,12 @@ class Engine:
         if len(set(keys)) != len(keys):
             raise EngineError("task keys must be unique in a run")
         weights = {t.key: t.weight for t in tasks}
+        # Dask keys unique to this run: a key of an earlier run (another plan's "0") may still be known to the
+        # scheduler, with that run's result or failure.
+        run_id = uuid.uuid4().hex[:12]
         futures = {}
         for t in tasks:
-            fut = self.client.submit(run_isolated, t.key, t.fn, t.args, key=f"task-{os.getpid()}-{t.key}", pure=False)
+            fut = self.client.submit(run_isolated, t.key, t.fn, t.args, key=f"task-{run_id}-{t.key}", pure=False)
             futures[fut] = t.key
         for fut in distributed.as_completed(list(futures)):
             key = futures[fut]

@@ -8,7 +8,11 @@ Three separate steps, so that the diagnosis never sees how a bag was made:
    ``labels.json`` holds the answers.
 2. **Diagnose blind**: every bag of the manifest through
    :func:`terrain_analysis.sim2real.diagnose.diagnose` (in worker processes),
-   given only the bag path and the vehicle; one JSON per bag.
+   given only the bag path and the vehicle; one JSON per bag. The diagnoses
+   run on the project's engine (:class:`terrain_analysis.experiment.Runner`:
+   a local Dask cluster of ``--jobs`` workers, or ``--scheduler``), each
+   isolated: a failing bag is an error result with its reason, the others go
+   on.
 3. **Score**: only now is ``labels.json`` read, joined on the bag id, and
    the confusion matrix, top-1 accuracy, held-out shrinkage, false-alarm rate
    on controls and the behaviour on out-of-catalogue effects are written as
@@ -23,7 +27,8 @@ Three separate steps, so that the diagnosis never sees how a bag was made:
 Usage::
 
     python -m terrain_analysis.tools.validate_sim2real --out out/sim2real \\
-        [--per-effect N] [--seed S] [--vehicle V ...] [--jobs J] [--report docs/results/sim2real.md]
+        [--per-effect N] [--seed S] [--vehicle V ...] [--jobs J | --scheduler ADDRESS] \\
+        [--report docs/results/sim2real.md]
 
 ``--reuse`` keeps an already generated suite and finished diagnoses (resume).
 """
@@ -40,11 +45,10 @@ import sys
 import time
 from collections import Counter, defaultdict
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
-from terrain_estimation.cli import cli_main
+from terrain_estimation.cli import InputError, cli_main
 
 __all__ = [
     "DEFAULT_SEED",
@@ -96,6 +100,21 @@ UNKNOWN_BIN = "unknown"
 # ---------------------------------------------------------------------------
 
 
+def _error_result(bag_id: str, vehicle: str, reason: str, seconds: float) -> dict[str, Any]:
+    """The result of a bag whose diagnosis failed: scored as an error, with its reason in the verdict."""
+    return {
+        "id": bag_id,
+        "vehicle": vehicle,
+        "verdict": f"error: {reason}",
+        "kind": "error",
+        "explained_by": [],
+        "indistinguishable": [],
+        "ranking": [],
+        "best": None,
+        "seconds": seconds,
+    }
+
+
 def _diagnose_one(args: tuple[str, str, str, str]) -> dict[str, Any]:
     bag_id, vehicle, bag, out = args
     from terrain_analysis.sim2real.diagnose import diagnose
@@ -120,31 +139,43 @@ def _diagnose_one(args: tuple[str, str, str, str]) -> dict[str, Any]:
             "seconds": time.perf_counter() - started,
         }
     except Exception as exc:  # a failure is a result to score, not a crash of the run
-        result = {
-            "id": bag_id,
-            "vehicle": vehicle,
-            "verdict": f"error: {type(exc).__name__}: {exc}",
-            "kind": "error",
-            "explained_by": [],
-            "indistinguishable": [],
-            "ranking": [],
-            "best": None,
-            "seconds": time.perf_counter() - started,
-        }
+        result = _error_result(bag_id, vehicle, f"{type(exc).__name__}: {exc}", time.perf_counter() - started)
     tmp = Path(out).with_suffix(".tmp")
     tmp.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
     os.replace(tmp, out)
     return result
 
 
+def _bag_bytes(bag: str) -> float:
+    """A bag's size in bytes (its files), the weight of its diagnosis for the order (largest first)."""
+    path = Path(bag)
+    files = [path] if path.is_file() else list(path.glob("*")) if path.is_dir() else []
+    return float(sum(f.stat().st_size for f in files if f.is_file()))
+
+
 def diagnose_suite(
-    suite: Path, out: Path, jobs: int = 1, vehicles: Sequence[str] | None = None, reuse: bool = False
+    suite: Path,
+    out: Path,
+    jobs: int = 1,
+    vehicles: Sequence[str] | None = None,
+    reuse: bool = False,
+    scheduler: str | None = None,
 ) -> list[dict[str, Any]]:
-    """Diagnose every bag of ``suite/manifest.json`` blind; one JSON per bag in ``out``."""
+    """Diagnose every bag of ``suite/manifest.json`` blind; one JSON per bag in ``out``.
+
+    The diagnoses run on the project's engine (:class:`terrain_analysis.experiment.Runner`: a local Dask cluster
+    of ``jobs`` worker processes, or the running cluster at ``scheduler``; ``jobs == 1``: in this process), each
+    isolated: a diagnosis that raises is an ``error`` result with its reason (its JSON written, as any finished
+    diagnosis), and one whose worker died is an ``error`` result too, not written, so that ``reuse`` tries it
+    again; the other bags go on. With ``reuse`` the bags whose JSON exists are taken from it. The results are
+    in manifest order.
+    """
+    from terrain_analysis.experiment import Runner
+
     manifest = json.loads((suite / "manifest.json").read_text(encoding="utf-8"))
     out.mkdir(parents=True, exist_ok=True)
-    todo = []
-    results = []
+    todo: list[tuple[str, str, str, str]] = []
+    results: list[dict[str, Any] | None] = []
     for entry in manifest["bags"]:
         if vehicles and entry["vehicle"] not in vehicles:
             continue
@@ -153,21 +184,21 @@ def diagnose_suite(
             results.append(json.loads(path.read_text(encoding="utf-8")))
             continue
         todo.append((entry["id"], entry["vehicle"], str(suite / entry["bag"]), str(path)))
+        results.append(None)
     started = time.monotonic()
-    print(f"validate-sim2real: diagnosing {len(todo)} bags blind with {jobs} worker(s)", file=sys.stderr)
-    if jobs <= 1:
-        done_iter = (_diagnose_one(t) for t in todo)
-        for i, r in enumerate(done_iter, 1):
-            results.append(r)
-            _progress(i, len(todo), r, started)
-    else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = [pool.submit(_diagnose_one, t) for t in todo]
-            for i, fut in enumerate(as_completed(futures), 1):
-                r = fut.result()
-                results.append(r)
-                _progress(i, len(todo), r, started)
-    return results
+    where = f" on {scheduler}" if scheduler else ""
+    print(f"validate-sim2real: diagnosing {len(todo)} bags blind with {jobs} worker(s){where}", file=sys.stderr)
+    done: dict[int, dict[str, Any]] = {}
+    if not todo:  # every bag reused: no cluster to start
+        return [r for r in results if r is not None]
+    with Runner(max(1, jobs), scheduler=scheduler, what="bags", progress=False) as runner:
+        for i, res in runner.run_each(_diagnose_one, todo, weight=lambda t: _bag_bytes(t[2]), key=lambda t: t[0]):
+            bag_id, vehicle = todo[i][:2]
+            r = res.value if res.ok and res.value is not None else _error_result(bag_id, vehicle, res.error, res.wall_s)
+            done[i] = r
+            _progress(len(done), len(todo), r, started)
+    fresh = iter(done[i] for i in range(len(todo)))
+    return [r if r is not None else next(fresh) for r in results]
 
 
 def _progress(i: int, n: int, r: dict[str, Any], started: float) -> None:
@@ -632,6 +663,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED, help="seed of the generated suite")
     parser.add_argument("--vehicle", action="append", help="vehicle(s) to validate (default: every supported)")
     parser.add_argument("--jobs", type=int, default=max(1, min(2, os.cpu_count() or 1)), help="worker processes")
+    parser.add_argument(
+        "--scheduler",
+        help="run the diagnoses on the running Dask cluster at this address (tcp://host:8786, or a scheduler file "
+        ".json) instead of a local one of --jobs workers; its workers must see --out at the same path",
+    )
     parser.add_argument("--report", help="write the Markdown section here (and a .json beside it)")
     parser.add_argument("--reuse", action="store_true", help="keep an existing suite and finished diagnoses")
     parser.add_argument(
@@ -676,7 +712,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 cmd += ["--vehicle", v]
         print(f"validate-sim2real: generating the suite: {' '.join(cmd)}", file=sys.stderr)
         subprocess.run(cmd, check=True)
-    results = diagnose_suite(suite, out / "diagnoses", args.jobs, vehicles, reuse=args.reuse)
+    from terrain_analysis.batch.engine import EngineError
+
+    try:
+        results = diagnose_suite(
+            suite, out / "diagnoses", args.jobs, vehicles, reuse=args.reuse, scheduler=args.scheduler
+        )
+    except EngineError as exc:  # an unreachable --scheduler: the input, not a bug
+        raise InputError(str(exc)) from exc
     scores = score(suite, results)
     context = {
         "command": MAKE_TARGETS.get(args.seed, f"python -m terrain_analysis.tools.validate_sim2real --seed {args.seed}")
