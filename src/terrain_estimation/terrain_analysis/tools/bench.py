@@ -58,7 +58,8 @@ One run prints, side by side (``make bench``):
    every filter in 60 s or less on 2 cores"): the 100 runs of case 1 of ``make reproduce-qc``
    (:func:`terrain_analysis.tools.reproduce_qc.build_plan`: Graneville loam, ISO D, 10 m/s, 12 s; every
    filter the case runs: SCKF, EKF, both with the printed ``Q_k``, and the SCKF with the ln k_s state) on
-   a pool of 2 worker processes, twice in one run: before (the EKF through its public numpy
+   2 workers of a local Dask cluster (the shared engine; its start-up and the workers' warm-up are
+   printed on their own line, not in the rows), twice in one run: before (the EKF through its public numpy
    ``predict``/``update``, as before the compiled EKF step; the SCKF compiled as before) and after (both
    compiled, the default). Wall time, CPU time of the workers, and the largest difference between the
    two runs' k_s errors (the same rides, the same filters to rounding).
