@@ -80,6 +80,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from terrain_estimation.checks import check_non_negative, check_positive
+
 __all__ = ["ChangeAlarm", "SoilChangeDetector", "DEFAULT_CLIP"]
 
 DEFAULT_CLIP = 20.0
@@ -175,14 +177,11 @@ class SoilChangeDetector:
         reopen_max_std: float = math.inf,
         clip: float = DEFAULT_CLIP,
     ) -> None:
-        if not (math.isfinite(drift) and drift >= 0.0):
-            raise ValueError(f"drift must be finite and >= 0, got {drift}")
-        if not (math.isfinite(threshold) and threshold > 0.0):
-            raise ValueError(f"threshold must be finite and > 0, got {threshold}")
-        if not (math.isfinite(reopen_scale) and reopen_scale >= 0.0):
-            raise ValueError(f"reopen_scale must be finite and >= 0, got {reopen_scale}")
-        if not (math.isfinite(reopen_min_std) and reopen_min_std >= 0.0):
-            raise ValueError(f"reopen_min_std must be finite and >= 0, got {reopen_min_std}")
+        owner = type(self).__name__
+        check_non_negative(owner, "drift", drift)
+        check_positive(owner, "threshold", threshold)
+        check_non_negative(owner, "reopen_scale", reopen_scale)
+        check_non_negative(owner, "reopen_min_std", reopen_min_std)
         if not (reopen_max_std > 0.0 and reopen_max_std >= reopen_min_std):
             raise ValueError(f"reopen_max_std must be > 0 and >= reopen_min_std, got {reopen_max_std}")
         if not (math.isfinite(clip) and clip > drift):

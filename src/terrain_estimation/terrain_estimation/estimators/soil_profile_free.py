@@ -95,10 +95,10 @@ from terrain_estimation.estimators.soil_stiffness import (
     SoilStiffnessEstimate,
     SoilStiffnessEstimatorConfig,
 )
+from terrain_estimation.estimators.soil_stiffness_config import soil_estimate
 from terrain_estimation.filters.base import Array
 from terrain_estimation.models.quarter_car import LRVParams, QuarterCarParams
 from terrain_estimation.models.quarter_car_road import QuarterCarRoadModel, RoadInputParams
-from terrain_estimation.models.soil import classify_soil
 
 __all__ = ["ProfileFreeSoilStiffnessEstimator", "BankMatrices"]
 
@@ -410,22 +410,10 @@ class ProfileFreeSoilStiffnessEstimator:
             k_grid = self.model.ktot_of(self.grid)
             k_tot = float(w @ k_grid)
             k_var = float(w @ (k_grid - k_tot) ** 2)
-        cls = classify_soil(k_s, k_s_var, cfg.soil_table, cfg.class_log_std, cfg.unknown_weight)
         motion = (w @ self._x).tolist()
         state = tuple(v if math.isfinite(v) else 0.0 for v in [*motion, s_mean])
-        est = SoilStiffnessEstimate(
-            t=t,
-            k_s=k_s,
-            k_s_variance=k_s_var,
-            k_tot=k_tot,
-            k_tot_variance=k_var,
-            terrain_class=cls.name,
-            class_confidence=cls.confidence,
-            converged=bool(math.sqrt(k_s_var) < cfg.convergence_rel_std * k_s),
-            soil_change_detected=change,
-            nis=nis,
-            accepted=accepted,
-            state=state,
+        est = soil_estimate(
+            t, (k_tot, k_var, k_s, k_s_var), cfg, soil_change_detected=change, nis=nis, accepted=accepted, state=state
         )
         self._last = est
         self._outbox.append(est)

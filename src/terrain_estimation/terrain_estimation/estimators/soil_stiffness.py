@@ -112,6 +112,7 @@ from terrain_estimation.estimators.soil_stiffness_config import (
     SoilStiffnessEstimate,
     SoilStiffnessEstimatorConfig,
     make_filter,
+    soil_estimate,
 )
 from terrain_estimation.estimators.soil_stiffness_ekf import warm_up_ekf
 from terrain_estimation.estimators.soil_stiffness_kernels import model_operands
@@ -119,7 +120,6 @@ from terrain_estimation.estimators.soil_stiffness_sckf import warm_up
 from terrain_estimation.filters.base import Array, UpdateInfo
 from terrain_estimation.filters.faults import DivergenceMonitor
 from terrain_estimation.models.quarter_car import LRVModel, QuarterCarModel, StepInput
-from terrain_estimation.models.soil import classify_soil
 
 __all__ = [
     "SoilStiffnessEstimatorConfig",
@@ -606,22 +606,14 @@ class SoilStiffnessEstimator(ProfileRoad, FilterSteps):
                     cov = cov + np.diag(np.r_[self._p0[:-1], alarm.reopen_std**2])
                     self._state = self.filter.initial_state(x, cov)
 
-        k_tot, k_var, k_s, k_s_var = self.model.stiffness_moments(float(x[-1]), float(cov[-1, -1]))
-        cls = classify_soil(k_s, k_s_var, cfg.soil_table, cfg.class_log_std, cfg.unknown_weight)
-        converged = math.sqrt(k_s_var) < cfg.convergence_rel_std * k_s
-
+        moments = self.model.stiffness_moments(float(x[-1]), float(cov[-1, -1]))
         state = tuple(x.tolist())
         if not all(map(math.isfinite, state)):
             state = tuple(v if math.isfinite(v) else 0.0 for v in state)
-        est = SoilStiffnessEstimate(
-            t=t,
-            k_s=k_s,
-            k_s_variance=k_s_var,
-            k_tot=k_tot,
-            k_tot_variance=k_var,
-            terrain_class=cls.name,
-            class_confidence=cls.confidence,
-            converged=bool(converged),
+        est = soil_estimate(
+            t,
+            moments,
+            cfg,
             soil_change_detected=change,
             nis=nis,
             accepted=accepted,

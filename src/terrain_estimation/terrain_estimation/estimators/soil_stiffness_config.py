@@ -15,10 +15,11 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from terrain_estimation.checks import check_fields
 from terrain_estimation.filters.faults import DivergenceConfig
 from terrain_estimation.models.quarter_car_params import LRVParams, QuarterCarParams
 from terrain_estimation.models.quarter_car_road import RoadInputParams
-from terrain_estimation.models.soil import SOIL_TABLE, SoilClass
+from terrain_estimation.models.soil import SOIL_TABLE, SoilClass, classify_soil
 
 __all__ = [
     "FILTER_CLASSES",
@@ -27,6 +28,7 @@ __all__ = [
     "SoilStiffnessEstimate",
     "SoilStiffnessEstimatorConfig",
     "make_filter",
+    "soil_estimate",
 ]
 
 #: Filter name → (module, class) of terrain_estimation.filters; imported lazily
@@ -217,10 +219,7 @@ class SoilStiffnessEstimatorConfig:
             "profile_max_gap_s",
             "max_step_s",
         )
-        for name in positive:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {value}")
+        check_fields(self, positive)
         non_negative = (
             "change_drift",
             "profile_smoothing_s",
@@ -232,10 +231,7 @@ class SoilStiffnessEstimatorConfig:
             "change_log_ks_std",
             "change_reopen_scale",
         )
-        for name in non_negative:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+        check_fields(self, non_negative, rule="non_negative")
         if not (self.change_drift < self.change_clip and math.isfinite(self.change_clip)):
             raise ValueError(f"change_clip must be finite and > change_drift, got {self.change_clip}")
         if not (0.0 <= self.change_jump_gain <= 1.0):
@@ -308,6 +304,39 @@ class SoilStiffnessEstimate:
     accepted: bool
     state: tuple[float, ...] = ()
     profile_gap_ratio: float = 1.0
+
+
+def soil_estimate(
+    t: float,
+    moments: tuple[float, float, float, float],
+    config: Any,
+    *,
+    soil_change_detected: bool,
+    nis: float,
+    accepted: bool,
+    state: tuple[float, ...],
+    profile_gap_ratio: float = 1.0,
+) -> SoilStiffnessEstimate:
+    """The estimate of a step from the stiffness moments ``(k_tot, var k_tot, k_s, var k_s)``: the nearest soil
+    class and the convergence test, with the estimator's ``config`` (its ``soil_table``, ``class_log_std``,
+    ``unknown_weight`` and ``convergence_rel_std``)."""
+    k_tot, k_var, k_s, k_s_var = moments
+    cls = classify_soil(k_s, k_s_var, config.soil_table, config.class_log_std, config.unknown_weight)
+    return SoilStiffnessEstimate(
+        t=t,
+        k_s=k_s,
+        k_s_variance=k_s_var,
+        k_tot=k_tot,
+        k_tot_variance=k_var,
+        terrain_class=cls.name,
+        class_confidence=cls.confidence,
+        converged=bool(math.sqrt(k_s_var) < config.convergence_rel_std * k_s),
+        soil_change_detected=soil_change_detected,
+        nis=nis,
+        accepted=accepted,
+        state=state,
+        profile_gap_ratio=profile_gap_ratio,
+    )
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,7 @@ over a ride), not bit for bit (``test/test_soil_stiffness_ekf.py``).
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -42,95 +43,58 @@ from terrain_estimation.estimators.soil_stiffness_kernels import (
     STATUS_FAILED,
     STATUS_OK,
     ModelOperands,
+    StepData,
+    advance,
+    compile_step,
+    input_gain,
     ktot,
     ktot_slope,
     measurement_noise_factor,
+    measurement_sums,
     noise_factor,
     propagate,
-    step_arguments,
+    run_compiled_step,
+    stiffness_map,
     taylor4,
-    warm_up_arguments,
+    transition_matrices,
 )
-from terrain_estimation.filters.compiled_linalg import all_finite, cholesky_lower, mul, mul_bt, solve_lower, symmetrise
+from terrain_estimation.filters.compiled_linalg import (
+    all_finite,
+    cholesky_lower,
+    matmul,
+    mul,
+    mul_bt,
+    solve_lower,
+    symmetrise,
+)
 from terrain_estimation.jit import compiled
 
 __all__ = ["ekf_step", "run_ekf_step", "warm_up_ekf"]
 
 
-def run_ekf_step(
-    ops: ModelOperands,
-    model: Any,
-    x: Any,
-    P: Any,
-    u: Any,
-    dt: float,
-    z: np.ndarray | None,
-    sigma_eps: np.ndarray,
-    profile_noise: bool,
-    gate: float | None,
-) -> tuple[int, np.ndarray, np.ndarray, float, bool, np.ndarray, np.ndarray]:
-    """:func:`ekf_step` for ``model`` (its ``model_operands`` ``ops``) and a step's input as the model takes it.
-
-    Args:
-        x, P: the previous posterior (mean, covariance).
-        u: the step's sub-step ḣ ``(N,)`` or a ``StepInput`` (ḣ at the
-            measurement time for a feed-through).
-        z: the measured accelerations ``(p,)``; None for a predict-only step.
-        sigma_eps, profile_noise: ``Σ_ε`` and whether it enters ``R``.
-        gate: the EKF's NIS gate (None: none).
-
-    Returns:
-        :func:`ekf_step`'s tuple.
-    """
-    return ekf_step(
-        np.ascontiguousarray(x, dtype=float),
-        np.ascontiguousarray(P, dtype=float),
-        *step_arguments(ops, model, u, dt, z, sigma_eps, profile_noise, gate),
-        ops.paper_jacobian,
-    )
-
-
 @compiled
 def _transition(
-    x: np.ndarray,
-    us: np.ndarray,
-    dt: float,
-    a0: np.ndarray,
-    e: np.ndarray,
-    b: np.ndarray,
-    logistic: bool,
-    k_lo: float,
-    k_hi: float,
-    k_series: float,
-    paper_jacobian: bool,
-) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    x: np.ndarray, us: np.ndarray, dt: float, ops: ModelOperands
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
     """The model's ``f(x, u, dt)`` and ``transition_jacobian(x, u, dt)`` at one state, through the sub-steps."""
     n = x.shape[0]
     nsub = us.shape[0]
     delta = dt / nsub
+    e = ops.e
+    b = ops.b
+    km = stiffness_map(ops)
     k_raw = x[n - 1]
-    k = ktot(k_raw, logistic, k_lo, k_hi, k_series)
-    slope = ktot_slope(k_raw, logistic, k_lo, k_hi, k_series)
-    x_f = propagate(x, us, dt, a0, e, b, logistic, k_lo, k_hi, k_series)
+    k = ktot(k_raw, km)
+    slope = ktot_slope(k_raw, km)
+    x_f = propagate(x, us, dt, ops.a0, e, b, km)
     # The Jacobian runs its own recursion of x_j, as transition_jacobian does.
-    a = np.empty((n, n))
-    for r in range(n):
-        for c in range(n):
-            a[r, c] = a0[r, c] + k * e[r, c]
-    phi = np.empty((n, n))
-    gam = np.empty((n, n))
-    taylor4(a * delta, phi, gam)
-    gb = np.empty(n)
-    for r in range(n):
-        s = 0.0
-        for c in range(n):
-            s += gam[r, c] * delta * b[c]
-        gb[r] = s
+    a, phi, gam = transition_matrices(k, delta, ops.a0, e)
+    gb = input_gain(gam, delta, b)
     nxt = np.empty(n)
     jac = np.eye(n)
     xj = x.copy()
     tmp = np.empty((n, n))
-    if paper_jacobian:
+    if ops.paper_jacobian:
         # The product over sub-steps of A_x(x_j) discretised, A_x = A with ∂(A(x) x)/∂k in its last column.
         a_x = np.empty((n, n))
         phi_x = np.empty((n, n))
@@ -144,18 +108,9 @@ def _transition(
                     a_x[r, c] = a[r, c]
                 a_x[r, n - 1] += s * slope
             taylor4(a_x * delta, phi_x, gam_x)
-            for r in range(n):
-                for c in range(n):
-                    s = 0.0
-                    for i in range(n):
-                        s += phi_x[r, i] * jac[i, c]
-                    tmp[r, c] = s
+            matmul(phi_x, jac, tmp)
             jac[:, :] = tmp
-            for r in range(n):
-                s = 0.0
-                for c in range(n):
-                    s += phi[r, c] * xj[c]
-                nxt[r] = s + gb[r] * us[j]
+            advance(phi, gb, xj, us[j], nxt)
             xj[:] = nxt
             xj[n - 1] = k_raw
         return x_f, jac
@@ -207,54 +162,15 @@ def _transition(
 
 @compiled
 def ekf_step(
-    x: np.ndarray,
-    P: np.ndarray,
-    us: np.ndarray,
-    dt: float,
-    a0: np.ndarray,
-    e: np.ndarray,
-    b: np.ndarray,
-    g: np.ndarray,
-    sigma_q: np.ndarray,
-    q_last: float,
-    logistic: bool,
-    k_lo: float,
-    k_hi: float,
-    k_series: float,
-    k_floor: float,
-    update: bool,
-    z: np.ndarray,
-    c0: np.ndarray,
-    ce: np.ndarray,
-    d: np.ndarray,
-    hdot_end: float,
-    sqrt_r: np.ndarray,
-    sigma_eps: np.ndarray,
-    profile_noise: bool,
-    gate: float,
-    paper_jacobian: bool,
-) -> tuple[int, np.ndarray, np.ndarray, float, bool, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """One EKF step (predict through the sub-steps, then update unless ``update`` is False).
+    x: np.ndarray, P: np.ndarray, model: tuple[Any, ...], data: tuple[Any, ...]
+) -> tuple[int, np.ndarray, np.ndarray, float, bool, np.ndarray, np.ndarray]:  # pragma: no cover
+    """One EKF step (predict through the sub-steps, then update unless ``step.update`` is False).
 
     Args:
         x, P: posterior mean ``(n,)`` and covariance ``(n, n)`` of the previous step.
-        us: ḣ (m/s) of the ``N`` equal sub-steps spanning ``dt``, finite ``(N,)``.
-        dt: filter step (s).
-        a0, e, b, g: the model's ``A0``, ``E`` ``(n, n)``, ``B`` ``(n,)``, ``G`` ``(n, n)``.
-        sigma_q: process-noise standard deviations ``(n,)`` (column scale of ``√Q_k``).
-        q_last: ``√Q_k``'s last diagonal entry (the stiffness random walk over ``dt``).
-        logistic, k_lo, k_hi, k_series: ``ktot_of``: clamp into ``[k_lo, k_hi]``, or
-            ``k_series · logistic`` of the value clipped into ``[k_lo, k_hi]``.
-        k_floor: the k_tot a non-finite mean stands for (the model's lower clamp).
-        update: False for a predict-only step.
-        z: measurement ``(p,)``, finite (p = 1: the body accelerometer alone).
-        c0, ce, d: the model's measurement rows, at least ``p`` of each.
-        hdot_end: ḣ at the measurement time (the ``D ḣ`` feed-through; 0 without one).
-        sqrt_r: the accelerometers' standard deviations (``√R`` is its diagonal), ≥ ``p``.
-        sigma_eps: ``Σ_ε`` ``(2, 2)`` of the elevation / ḣ errors of the road.
-        profile_noise: add ``G Σ_ε Gᵀ`` to ``R`` (``profile_noise_std > 0``).
-        gate: NIS threshold (``inf``: no gate).
-        paper_jacobian: the ``"paper"`` transition Jacobian instead of the exact one.
+        model: the model's constants, a :class:`ModelOperands`'s fields as a plain tuple
+            (``paper_jacobian``: the ``"paper"`` transition Jacobian).
+        data: the step's input, measurement, noise and gate, a :class:`StepData`'s fields as a plain tuple.
 
     Returns:
         ``(status, x̄, P̄, nis, accepted, x̂, P̂)``: the prior, the NIS of the
@@ -265,38 +181,39 @@ def ekf_step(
         positive definite (where the public EKF raises); the other outputs are
         then meaningless.
     """
+    ops = ModelOperands(*model)
+    step = StepData(*data)
+    km = stiffness_map(ops)
     n = x.shape[0]
-    x_pred, F = _transition(x, us, dt, a0, e, b, logistic, k_lo, k_hi, k_series, paper_jacobian)
+    x_pred, F = _transition(x, step.us, step.dt, ops)
     if not (all_finite(x_pred) and all_finite(F)):
         return STATUS_FAILED, x.copy(), P.copy(), 0.0, False, x.copy(), P.copy()
     # √Q_k = √dt Γ_k(dt) G diag(σ) at the mean k_tot, its stiffness column replaced (process_noise_sqrt).
-    L = noise_factor(x[n - 1], dt, a0, e, g, sigma_q, q_last, logistic, k_lo, k_hi, k_series, k_floor)
+    L = noise_factor(x[n - 1], step.dt, step.q_last, ops.a0, ops.e, ops.g, ops.sigma_q, km)
     # P̄ = F P Fᵀ + L Lᵀ, symmetrised.
     P_pred = symmetrise(mul_bt(mul(F, P), F) + mul_bt(L, L))
-    if not update:
+    if not step.update:
         return STATUS_OK, x_pred, P_pred, 0.0, False, x_pred, P_pred
+    z = step.z
     p = z.shape[0]
     # R, or R_eff = R + G Σ_ε Gᵀ with G = [C(x̄) B, D] at the predicted mean; R is used as √R √Rᵀ.
     Rs, ok = measurement_noise_factor(
-        x_pred[n - 1], p, b, c0, ce, d, sqrt_r, sigma_eps, profile_noise, logistic, k_lo, k_hi, k_series, k_floor
+        x_pred[n - 1], ops.b, ops.c0, ops.ce, ops.d, ops.sqrt_r, km, p, step.sigma_eps, step.profile_noise
     )
     if not ok:
         return STATUS_FAILED, x_pred, P_pred, 0.0, False, x_pred, P_pred
     R = mul_bt(Rs, Rs)
     # ẑ = C(x̄) x̄ + D ḣ(t) and H = ∂h/∂x at x̄ (measurement_jacobian).
     k_raw = x_pred[n - 1]
-    k = ktot(k_raw, logistic, k_lo, k_hi, k_series)
-    slope = ktot_slope(k_raw, logistic, k_lo, k_hi, k_series)
+    k = ktot(k_raw, km)
+    slope = ktot_slope(k_raw, km)
     z_hat = np.empty(p)
     H = np.empty((p, n))
     for q in range(p):
-        s0 = 0.0
-        s1 = 0.0
+        s0, s1 = measurement_sums(x_pred, q, ops.c0, ops.ce)
         for c in range(n):
-            s0 += x_pred[c] * c0[q, c]
-            s1 += x_pred[c] * ce[q, c]
-            H[q, c] = c0[q, c] + k * ce[q, c]
-        z_hat[q] = s0 + k * s1 + d[q] * hdot_end
+            H[q, c] = ops.c0[q, c] + k * ops.ce[q, c]
+        z_hat[q] = s0 + k * s1 + ops.d[q] * step.hdot_end
         H[q, n - 1] += s1 * slope
     if not (all_finite(z_hat) and all_finite(H)):
         return STATUS_FAILED, x_pred, P_pred, 0.0, False, x_pred, P_pred
@@ -316,7 +233,7 @@ def ekf_step(
     nis = 0.0
     for q in range(p):
         nis += sol[q, n] * sol[q, n]
-    if not (math.isfinite(nis) and nis <= gate):
+    if not (math.isfinite(nis) and nis <= step.gate):
         return STATUS_OK, x_pred, P_pred, nis, False, x_pred, P_pred
     Y = sol[:, :n].copy()
     K = solve_lower(Ls, Y, True).T.copy()
@@ -331,17 +248,14 @@ def ekf_step(
     return STATUS_OK, x_pred, P_pred, nis, True, x_post, P_post
 
 
-_warm = False
+#: :func:`ekf_step` for a model (its ``model_operands`` ``ops``) and a step's input as the model takes it:
+#: ``run_ekf_step(ops, model, x, P, u, dt, z, sigma_eps, profile_noise, gate)`` (:func:`.run_compiled_step`).
+run_ekf_step = partial(run_compiled_step, ekf_step)
 
 
 def warm_up_ekf() -> None:
-    """Compile :func:`ekf_step` (or load it from numba's cache) now, once per process.
+    """Compile :func:`ekf_step` (or load it from numba's cache) now, once per process (:func:`.compile_step`).
 
-    The estimator calls this when it is built with the EKF, so that a node's
-    first filter step does not wait for the compiler.
+    The estimator calls this when it is built with the EKF.
     """
-    global _warm
-    if _warm:
-        return
-    ekf_step(*warm_up_arguments(), False)
-    _warm = True
+    compile_step(ekf_step)

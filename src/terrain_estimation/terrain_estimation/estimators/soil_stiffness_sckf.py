@@ -29,6 +29,7 @@ loops, so results agree to rounding (about 1e-13 relative), not bit for bit
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -37,100 +38,33 @@ from terrain_estimation.estimators.soil_stiffness_kernels import (
     STATUS_FAILED,
     STATUS_OK,
     ModelOperands,
+    StepData,
+    compile_step,
     ktot,
     measurement_noise_factor,
+    measurement_sums,
     model_operands,
     noise_factor,
     propagate,
-    step_arguments,
-    warm_up_arguments,
+    run_compiled_step,
+    stiffness_map,
 )
-from terrain_estimation.filters.compiled_linalg import all_finite, solve_lower, tria
+from terrain_estimation.filters.compiled_linalg import all_finite, mul, row_mean, solve_lower, tria
 from terrain_estimation.jit import compiled
 
 __all__ = ["STATUS_OK", "STATUS_FAILED", "ModelOperands", "model_operands", "run_step", "sckf_step", "warm_up"]
 
 
-def run_step(
-    ops: ModelOperands,
-    model: Any,
-    x: Any,
-    S: Any,
-    u: Any,
-    dt: float,
-    z: np.ndarray | None,
-    sigma_eps: np.ndarray,
-    profile_noise: bool,
-    gate: float | None,
-) -> tuple[int, np.ndarray, np.ndarray, float, bool, np.ndarray, np.ndarray]:
-    """:func:`sckf_step` for ``model`` (its :func:`model_operands` ``ops``) and a step's input as the model takes it.
-
-    Args:
-        x, S: the previous posterior (mean, lower factor).
-        u: the step's sub-step ḣ ``(N,)`` or a ``StepInput`` (ḣ at the
-            measurement time for a feed-through).
-        z: the measured accelerations ``(p,)``; None for a predict-only step.
-        sigma_eps, profile_noise: ``Σ_ε`` and whether it enters ``R``.
-        gate: the SCKF's NIS gate (None: none).
-
-    Returns:
-        :func:`sckf_step`'s tuple.
-    """
-    return sckf_step(
-        np.ascontiguousarray(x, dtype=float),
-        np.ascontiguousarray(S, dtype=float),
-        *step_arguments(ops, model, u, dt, z, sigma_eps, profile_noise, gate),
-    )
-
-
 @compiled
 def sckf_step(
-    x: np.ndarray,
-    S: np.ndarray,
-    us: np.ndarray,
-    dt: float,
-    a0: np.ndarray,
-    e: np.ndarray,
-    b: np.ndarray,
-    g: np.ndarray,
-    sigma_q: np.ndarray,
-    q_last: float,
-    logistic: bool,
-    k_lo: float,
-    k_hi: float,
-    k_series: float,
-    k_floor: float,
-    update: bool,
-    z: np.ndarray,
-    c0: np.ndarray,
-    ce: np.ndarray,
-    d: np.ndarray,
-    hdot_end: float,
-    sqrt_r: np.ndarray,
-    sigma_eps: np.ndarray,
-    profile_noise: bool,
-    gate: float,
+    x: np.ndarray, S: np.ndarray, model: tuple[Any, ...], data: tuple[Any, ...]
 ) -> tuple[int, np.ndarray, np.ndarray, float, bool, np.ndarray, np.ndarray]:  # pragma: no cover
-    """One SCKF step (predict through the sub-steps, then update unless ``update`` is False).
+    """One SCKF step (predict through the sub-steps, then update unless ``step.update`` is False).
 
     Args:
         x, S: posterior mean ``(n,)`` and lower factor ``(n, n)`` of the previous step.
-        us: ḣ (m/s) of the ``N`` equal sub-steps spanning ``dt``, finite ``(N,)``.
-        dt: filter step (s).
-        a0, e, b, g: the model's ``A0``, ``E`` ``(n, n)``, ``B`` ``(n,)``, ``G`` ``(n, n)``.
-        sigma_q: process-noise standard deviations ``(n,)`` (column scale of ``√Q_k``).
-        q_last: ``√Q_k``'s last diagonal entry (the stiffness random walk over ``dt``).
-        logistic, k_lo, k_hi, k_series: ``ktot_of``: clamp into ``[k_lo, k_hi]``, or
-            ``k_series · logistic`` of the value clipped into ``[k_lo, k_hi]``.
-        k_floor: the k_tot a non-finite mean stands for (the model's lower clamp).
-        update: False for a predict-only step.
-        z: measurement ``(p,)``, finite (p = 1: the body accelerometer alone).
-        c0, ce, d: the model's measurement rows, at least ``p`` of each.
-        hdot_end: ḣ at the measurement time (the ``D ḣ`` feed-through; 0 without one).
-        sqrt_r: the accelerometers' standard deviations (``√R`` is its diagonal), ≥ ``p``.
-        sigma_eps: ``Σ_ε`` ``(2, 2)`` of the elevation / ḣ errors of the road.
-        profile_noise: add ``G Σ_ε Gᵀ`` to ``R`` (``profile_noise_std > 0``).
-        gate: NIS threshold (``inf``: no gate).
+        model: the model's constants, a :class:`ModelOperands`'s fields as a plain tuple.
+        data: the step's input, measurement, noise and gate, a :class:`StepData`'s fields as a plain tuple.
 
     Returns:
         ``(status, x̄, S̄, nis, accepted, x̂, Ŝ)``: the prior, the NIS of the
@@ -139,6 +73,9 @@ def sckf_step(
         did not). ``status`` :data:`STATUS_FAILED`: the step failed; the
         other outputs are then meaningless.
     """
+    ops = ModelOperands(*model)
+    step = StepData(*data)
+    km = stiffness_map(ops)
     n = x.shape[0]
     m = 2 * n
     root_n = math.sqrt(n)
@@ -154,33 +91,29 @@ def sckf_step(
     for i in range(m):
         for r in range(n):
             col[r] = x[r] + dX[i, r]
-        Xs[i] = propagate(col, us, dt, a0, e, b, logistic, k_lo, k_hi, k_series)
+        Xs[i] = propagate(col, step.us, step.dt, ops.a0, ops.e, ops.b, km)
     if not all_finite(Xs):
         return STATUS_FAILED, x.copy(), S.copy(), 0.0, False, x.copy(), S.copy()
     # √Q_k = √dt Γ_k(dt) G diag(σ) at the mean k_tot, its stiffness column replaced; stored transposed below χ*.
-    L = noise_factor(x[n - 1], dt, a0, e, g, sigma_q, q_last, logistic, k_lo, k_hi, k_series, k_floor)
+    L = noise_factor(x[n - 1], step.dt, step.q_last, ops.a0, ops.e, ops.g, ops.sigma_q, km)
     rows = np.empty((m + n, n))
     for r in range(n):
         for c in range(n):
             rows[m + c, r] = L[r, c]
     # (16)-(18)
-    x_pred = np.zeros(n)
-    for i in range(m):
-        for r in range(n):
-            x_pred[r] += Xs[i, r]
-    for r in range(n):
-        x_pred[r] /= m
+    x_pred = row_mean(Xs)
     w = 1.0 / math.sqrt(m)
     for i in range(m):
         for r in range(n):
             rows[i, r] = (Xs[i, r] - x_pred[r]) * w
     S_pred = tria(rows)
-    if not update:
+    if not step.update:
         return STATUS_OK, x_pred, S_pred, 0.0, False, x_pred, S_pred
+    z = step.z
     p = z.shape[0]
     # √R_eff: R + G Σ_ε Gᵀ, G = [C(x̄) B, D] at the predicted mean.
     Rs, ok = measurement_noise_factor(
-        x_pred[n - 1], p, b, c0, ce, d, sqrt_r, sigma_eps, profile_noise, logistic, k_lo, k_hi, k_series, k_floor
+        x_pred[n - 1], ops.b, ops.c0, ops.ce, ops.d, ops.sqrt_r, km, p, step.sigma_eps, step.profile_noise
     )
     if not ok:
         return STATUS_FAILED, x_pred, S_pred, 0.0, False, x_pred, S_pred
@@ -193,22 +126,13 @@ def sckf_step(
     for i in range(m):
         for r in range(n):
             col[r] = x_pred[r] + dX[i, r]
-        k = ktot(col[n - 1], logistic, k_lo, k_hi, k_series)
+        k = ktot(col[n - 1], km)
         for q in range(p):
-            s0 = 0.0
-            s1 = 0.0
-            for c in range(n):
-                s0 += col[c] * c0[q, c]
-                s1 += col[c] * ce[q, c]
-            Z[i, q] = s0 + k * s1 + d[q] * hdot_end
+            s0, s1 = measurement_sums(col, q, ops.c0, ops.ce)
+            Z[i, q] = s0 + k * s1 + ops.d[q] * step.hdot_end
     if not all_finite(Z):
         return STATUS_FAILED, x_pred, S_pred, 0.0, False, x_pred, S_pred
-    z_hat = np.zeros(p)
-    for i in range(m):
-        for q in range(p):
-            z_hat[q] += Z[i, q]
-    for q in range(p):
-        z_hat[q] /= m
+    z_hat = row_mean(Z)
     # (22)-(23) S_z = tria([𝒵, √R]); (24)-(25) P_xz = χ 𝒵ᵀ
     zrows = np.empty((m + p, p))
     Zc = np.empty((m, p))
@@ -222,12 +146,8 @@ def sckf_step(
     S_z = tria(zrows)
     chi = dX * w
     A = np.empty((p, n + 1))
+    A[:, :n] = mul(Zc.T, chi)  # P_xzᵀ = 𝒵 χᵀ
     for q in range(p):
-        for r in range(n):
-            s = 0.0
-            for i in range(m):
-                s += chi[i, r] * Zc[i, q]
-            A[q, r] = s
         A[q, n] = z[q] - z_hat[q]
     # (26), first solve: S_z A = [P_xzᵀ, ν], which also whitens ν for the NIS
     A = solve_lower(S_z, A, False)
@@ -237,7 +157,7 @@ def sckf_step(
     for q in range(p):
         if S_z[q, q] == 0.0:
             nis = math.inf
-    if not (math.isfinite(nis) and nis <= gate):
+    if not (math.isfinite(nis) and nis <= step.gate):
         return STATUS_OK, x_pred, S_pred, nis, False, x_pred, S_pred
     # (26), second solve: S_zᵀ Wᵀ = A → Wᵀ (p, n); (27) x̂ = x̄ + W ν; (28) Ŝ = tria([χ − W 𝒵, W √R])
     Wt = solve_lower(S_z, A[:, :n].copy(), True)
@@ -248,34 +168,17 @@ def sckf_step(
             s += (z[q] - z_hat[q]) * Wt[q, r]
         x_post[r] += s
     prow = np.empty((m + p, n))
-    for i in range(m):
-        for r in range(n):
-            s = 0.0
-            for q in range(p):
-                s += Zc[i, q] * Wt[q, r]
-            prow[i, r] = chi[i, r] - s
-    for i in range(p):
-        for r in range(n):
-            s = 0.0
-            for q in range(p):
-                s += Rs[q, i] * Wt[q, r]
-            prow[m + i, r] = s
+    prow[:m] = chi - mul(Zc, Wt)
+    prow[m:] = mul(Rs.T, Wt)
     S_post = tria(prow)
     return STATUS_OK, x_pred, S_pred, nis, True, x_post, S_post
 
 
-_warm = False
+#: :func:`sckf_step` for a model (its :func:`model_operands` ``ops``) and a step's input as the model takes it:
+#: ``run_step(ops, model, x, S, u, dt, z, sigma_eps, profile_noise, gate)`` (:func:`.run_compiled_step`).
+run_step = partial(run_compiled_step, sckf_step)
 
 
 def warm_up() -> None:
-    """Compile :func:`sckf_step` (or load it from numba's cache) now, once per process.
-
-    The estimator calls this when it is built, so that a node's first filter
-    step does not wait for the compiler: about 7 s the first time on a
-    machine, a fraction of a second once numba's on-disk cache holds it.
-    """
-    global _warm
-    if _warm:
-        return
-    sckf_step(*warm_up_arguments())
-    _warm = True
+    """Compile :func:`sckf_step` (or load it from numba's cache) now, once per process (:func:`.compile_step`)."""
+    compile_step(sckf_step)

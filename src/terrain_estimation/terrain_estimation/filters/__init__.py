@@ -20,6 +20,7 @@ Strong tracking and noise adaptation for the (AN-)STUKF are pure functions in
 estimate (on top of each filter's innovation gate) are in :mod:`.faults`.
 """
 
+from . import base, faults, sigma_points
 from .adaptive import (
     NoiseAdaptation,
     StrongTrackingConfig,
@@ -29,38 +30,13 @@ from .adaptive import (
     strong_tracking_predict,
     suboptimal_fading_factor,
 )
-from .base import (
-    Array,
-    GaussianState,
-    JacobianModel,
-    SqrtGaussianState,
-    StateSpaceModel,
-    UpdateInfo,
-    check_square,
-    check_vector,
-    nis_gate,
-)
+from .base import *  # noqa: F403 - the whole public list (see __all__)
 from .ckf import CubatureKalmanFilter
 from .ekf import ExtendedKalmanFilter
-from .faults import (
-    DivergenceCheck,
-    DivergenceConfig,
-    DivergenceMonitor,
-    guarded_step,
-    nis_band,
-    sqrt_factor_fault,
-)
-from .kalman import KalmanFilter
+from .faults import *  # noqa: F403 - the whole public list (see __all__)
+from .kalman import GatedFilter, KalmanFilter
 from .sckf import SquareRootCubatureKalmanFilter
-from .sigma_points import (
-    CubaturePoints,
-    MerweScaledSigmaPoints,
-    SigmaPointSet,
-    cubature_points,
-    merwe_scaled_sigma_points,
-    robust_sqrt,
-    tria,
-)
+from .sigma_points import *  # noqa: F403 - the whole public list (see __all__)
 from .ukf import (
     MeasurementMoments,
     SigmaPointKalmanFilter,
@@ -69,25 +45,8 @@ from .ukf import (
 )
 
 __all__ = [
-    # base vocabulary
-    "Array",
-    "GaussianState",
-    "SqrtGaussianState",
-    "UpdateInfo",
-    "StateSpaceModel",
-    "JacobianModel",
-    "check_vector",
-    "check_square",
-    "nis_gate",
-    # sigma points
-    "SigmaPointSet",
-    "CubaturePoints",
-    "MerweScaledSigmaPoints",
-    "cubature_points",
-    "merwe_scaled_sigma_points",
-    "tria",
-    "robust_sqrt",
     # filters
+    "GatedFilter",
     "KalmanFilter",
     "ExtendedKalmanFilter",
     "SigmaPointKalmanFilter",
@@ -104,11 +63,8 @@ __all__ = [
     "suboptimal_fading_factor",
     "strong_tracking_predict",
     "adapt_noise_sqrt",
-    # faults
-    "DivergenceConfig",
-    "DivergenceCheck",
-    "DivergenceMonitor",
-    "guarded_step",
-    "nis_band",
-    "sqrt_factor_fault",
 ]
+# The base vocabulary, the sigma points and the fault handling: each module's whole public list.
+__all__ += base.__all__
+__all__ += sigma_points.__all__
+__all__ += faults.__all__

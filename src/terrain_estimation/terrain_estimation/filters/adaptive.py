@@ -239,12 +239,7 @@ def suboptimal_fading_factor(
         return _whitened_fading_factor(e, V, S, P_xz, P_pred, R, Q, cfg, whiten(S, e)), V
     if cfg.gamma_th is not None and innovation_is_consistent(e, P_zz, cfg.gamma_th):
         return 1.0, V
-    N = V - cfg.beta_w * R
-    M = P_zz - R
-    if not cfg.simplified:
-        HQH = _hqh(P_xz, P_pred, Q)
-        N = N - HQH
-        M = M - HQH
+    N, M = _fading_numerator_denominator(V, P_zz, P_xz, P_pred, R, Q, cfg)
     tr_m = float(np.trace(M))
     if not tr_m > 0.0:
         return 1.0, V
@@ -252,6 +247,20 @@ def suboptimal_fading_factor(
     if not math.isfinite(c):
         return 1.0, V
     return min(max(1.0, c), cfg.lambda_max), V
+
+
+def _fading_numerator_denominator(
+    V: Array, P_zz: Array, P_xz: Array, P_pred: Array, R: Array, Q: Array, cfg: StrongTrackingConfig
+) -> tuple[Array, Array]:
+    """``N_k = V_k − β_w R_k − H̃ Q_k H̃ᵀ`` and ``M_k = P_zz − R_k − H̃ Q_k H̃ᵀ`` of the fading factor
+    (without the ``H̃ Q_k H̃ᵀ`` terms in the ``simplified`` variant)."""
+    N = V - cfg.beta_w * R
+    M = P_zz - R
+    if not cfg.simplified:
+        HQH = _hqh(P_xz, P_pred, Q)
+        N = N - HQH
+        M = M - HQH
+    return N, M
 
 
 def _hqh(P_xz: Array, P_pred: Array, Q: Array) -> Array:
@@ -314,12 +323,7 @@ def _whitened_fading_factor(
     p = e.shape[0]
     if cfg.probability is not None and float(w @ w) <= nis_threshold(p, cfg.probability):
         return 1.0
-    N = V - cfg.beta_w * R
-    M = S - R
-    if not cfg.simplified:
-        HQH = _hqh(P_xz, P_pred, Q)
-        N = N - HQH
-        M = M - HQH
+    N, M = _fading_numerator_denominator(V, S, P_xz, P_pred, R, Q, cfg)
     tr_m = float(((W @ M) * W).sum())  # tr(L⁻¹ M L⁻ᵀ)
     if not tr_m > 0.0:
         return 1.0

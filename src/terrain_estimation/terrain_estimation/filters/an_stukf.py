@@ -66,6 +66,8 @@ from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
+from terrain_estimation.checks import check_fields
+
 from .adaptive import (
     StrongTrackingConfig,
     _adapted_noise_factors,
@@ -222,10 +224,7 @@ class AdaptiveStrongTrackingUKF:
         if guard is None and self.variant == "adaptive_sideslip":
             guard = LowSpeedGuard()
         object.__setattr__(self, "_guard", guard)
-        for name in ("k_q", "k_r"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+        check_fields(self, ("k_q", "k_r"), rule="non_negative")
         for name in ("q0_sqrt", "r0_sqrt"):
             value = getattr(self, name)
             if value is not None:
@@ -288,20 +287,7 @@ class AdaptiveStrongTrackingUKF:
             prior = self.ukf.predict(state, model, u, dt, process_noise_sqrt=Lq0)
             mm = self.ukf.measurement_moments(prior, model, u, measurement_noise_sqrt=Rs0)
             nu = zv - mm.z_hat
-            gained, nis = self.ukf._gain_update(prior.x, prior.P, nu, mm.P_zz, mm.P_xz)
-            post = prior if gained is None else GaussianState(x=gained[0], P=gained[1])
-            return post, AnStukfResult(
-                fading_factor=1.0,
-                noise_scale=1.0,
-                mean_abs_sideslip=0.0,
-                nis=float(nis),
-                innovation=nu,
-                innovation_cov=mm.P_zz,
-                accepted=gained is not None,
-                memory=memory,
-                prior_cov=prior.P,
-                cross_cov=mm.P_xz,
-            )
+            return _gain_step(self.ukf, prior.x, prior.P, nu, mm.P_zz, mm.P_xz, 1.0, 1.0, 0.0, memory)
 
         if Lq0 is None:
             Lq0 = check_factor("model.process_noise_sqrt", model.process_noise_sqrt(x, u, dt), n)
@@ -333,20 +319,7 @@ class AdaptiveStrongTrackingUKF:
             P_prior = symmetrise(lam * P0 + Q)
             z_hat, P_zz, P_xz, _ = ukf._moments(x_bar, P_prior, Rs, model, u)
             nu = zv - z_hat
-        updated, nis = ukf._gain_update(x_bar, P_prior, nu, P_zz, P_xz)
-        post = GaussianState(x=x_bar, P=P_prior) if updated is None else GaussianState(x=updated[0], P=updated[1])
-        return post, AnStukfResult(
-            fading_factor=float(lam),
-            noise_scale=float(noise_scale),
-            mean_abs_sideslip=float(a_bar),
-            nis=float(nis),
-            innovation=nu,
-            innovation_cov=P_zz,
-            accepted=updated is not None,
-            memory=V,
-            prior_cov=P_prior,
-            cross_cov=P_xz,
-        )
+        return _gain_step(ukf, x_bar, P_prior, nu, P_zz, P_xz, lam, noise_scale, a_bar, V)
 
     def _sideslip(self, model: StateSpaceModel, x_bar: Array, u: Any) -> Array:
         """Tire sideslip angles at ``x̄`` (B.10), times the low-speed weight when a guard applies.
@@ -407,22 +380,44 @@ class AdaptiveStrongTrackingUKF:
             z_hat, P_zz, P_xz, _ = ukf._moments(x_bar, P_prior, Rs, model, u)
             nu = zv - z_hat
             whitened = None
-        updated, nis = ukf._gain_update(x_bar, P_prior, nu, P_zz, P_xz)
-        post = GaussianState(x=x_bar, P=P_prior) if updated is None else GaussianState(x=updated[0], P=updated[1])
         # Matching of the whitened innovation, also on a rejected update (clipped): the scales act from k + 1.
         s_r, s_q = update_noise_scales(
             mem, self.noise, innovation=nu, P_zz=P_zz, R=R, P_xz=P_xz, P_prior=P_prior, Q=Q, whitened=whitened
         )
-        return post, AnStukfResult(
-            fading_factor=float(lam),
-            noise_scale=float(noise_scale),
-            mean_abs_sideslip=float(a_bar),
-            nis=float(nis),
-            innovation=nu,
-            innovation_cov=P_zz,
-            accepted=updated is not None,
-            memory=AdaptiveMemory(V=V, r_scale=s_r, q_scale=s_q).pack(),
-            measurement_noise_scale=r_scale,
-            prior_cov=P_prior,
-            cross_cov=P_xz,
-        )
+        memory = AdaptiveMemory(V=V, r_scale=s_r, q_scale=s_q).pack()
+        return _gain_step(ukf, x_bar, P_prior, nu, P_zz, P_xz, lam, noise_scale, a_bar, memory, r_scale)
+
+
+def _gain_step(
+    ukf: UnscentedKalmanFilter,
+    x_bar: Array,
+    P_prior: Array,
+    nu: Array,
+    P_zz: Array,
+    P_xz: Array,
+    fading_factor: float,
+    noise_scale: float,
+    a_bar: float,
+    memory: Array | None,
+    r_scale: Array | None = None,
+) -> tuple[GaussianState, AnStukfResult]:
+    """The gated gain update of every variant (the UKF's) from ``(x̄, P̄)`` and its moments, and the step's result.
+
+    On a rejection the posterior is the prior ``(x̄, P̄)``; ``memory`` is what the next step takes back and
+    ``r_scale`` the measurement-noise scales of the innovation-adaptive variants (None for the others).
+    """
+    updated, nis = ukf._gain_update(x_bar, P_prior, nu, P_zz, P_xz)
+    post = GaussianState(x=x_bar, P=P_prior) if updated is None else GaussianState(x=updated[0], P=updated[1])
+    return post, AnStukfResult(
+        fading_factor=float(fading_factor),
+        noise_scale=float(noise_scale),
+        mean_abs_sideslip=float(a_bar),
+        nis=float(nis),
+        innovation=nu,
+        innovation_cov=P_zz,
+        accepted=updated is not None,
+        memory=memory,
+        measurement_noise_scale=r_scale,
+        prior_cov=P_prior,
+        cross_cov=P_xz,
+    )

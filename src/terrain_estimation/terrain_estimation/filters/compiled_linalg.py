@@ -36,6 +36,7 @@ __all__ = [
     "matmul",
     "mul",
     "mul_bt",
+    "row_mean",
     "solve",
     "solve_lower",
     "symmetrise",
@@ -161,15 +162,19 @@ def mul(a: Array, b: Array) -> Array:  # pragma: no cover - compiled
 @_kernel
 def mul_bt(a: Array, b: Array) -> Array:  # pragma: no cover - compiled
     """``a @ bᵀ`` as a new array, ``a`` ``(r, k)``, ``b`` ``(c, k)``."""
-    rows, inner = a.shape
-    cols = b.shape[0]
-    out = np.empty((rows, cols))
-    for i in range(rows):
-        for j in range(cols):
-            s = 0.0
-            for k in range(inner):
-                s += a[i, k] * b[j, k]
-            out[i, j] = s
+    return mul(a, b.T)
+
+
+@_kernel
+def row_mean(a: Array) -> Array:  # pragma: no cover - compiled
+    """The mean of the rows of ``a`` ``(m, d)``: ``(d,)``, summed in row order, then divided by ``m``."""
+    m, d = a.shape
+    out = np.zeros(d)
+    for i in range(m):
+        for r in range(d):
+            out[r] += a[i, r]
+    for r in range(d):
+        out[r] /= m
     return out
 
 

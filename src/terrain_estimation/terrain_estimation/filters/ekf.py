@@ -20,13 +20,15 @@ from typing import Any
 
 import numpy as np
 
-from .base import Array, GaussianState, JacobianModel, UpdateInfo, check_square, check_vector
+from .base import Array, GaussianState, JacobianModel, UpdateInfo
 from .kalman import (
-    check_factor,
-    check_gate_threshold,
+    GatedFilter,
     check_measurement,
+    check_state,
     initial_gaussian,
     joseph_update,
+    measurement_noise_factor,
+    process_noise_factor,
     symmetrise,
 )
 
@@ -43,19 +45,8 @@ def _check_output(name: str, value: Any, shape: tuple[int, ...]) -> Array:
 
 
 @dataclass(frozen=True, kw_only=True)
-class ExtendedKalmanFilter:
-    """First-order EKF with Joseph-form update (MODELS.md A.6).
-
-    Args:
-        gate_threshold: Mahalanobis gate on the NIS (e.g. a χ²_p quantile);
-            ``None`` disables gating. A rejected measurement returns the
-            prior state unchanged with ``accepted=False``.
-    """
-
-    gate_threshold: float | None = None
-
-    def __post_init__(self) -> None:
-        check_gate_threshold(self.gate_threshold)
+class ExtendedKalmanFilter(GatedFilter):
+    """First-order EKF with Joseph-form update (MODELS.md A.6), gated (:class:`~.kalman.GatedFilter`)."""
 
     def initial_state(self, x0: Any, P0: Any) -> GaussianState:
         """``GaussianState`` from a finite mean ``(n,)`` and a symmetric ``P0`` ``(n, n)``."""
@@ -87,14 +78,10 @@ class ExtendedKalmanFilter:
             ValueError: on wrong shapes, or non-finite model outputs.
         """
         n = model.state_dim
-        x = check_vector("state.x", state.x, n)
-        P = check_square("state.P", state.P, n)
+        x, P = check_state(state, n)
         x_new = _check_output("model.f", model.f(x, u, dt), (n,))
         F = _check_output("model.transition_jacobian", model.transition_jacobian(x, u, dt), (n, n))
-        if process_noise_sqrt is None:
-            L = check_factor("model.process_noise_sqrt", model.process_noise_sqrt(x, u, dt), n)
-        else:
-            L = check_factor("process_noise_sqrt", process_noise_sqrt, n)
+        L = process_noise_factor(model, x, u, dt, process_noise_sqrt, n)
         return GaussianState(x=x_new, P=symmetrise(F @ P @ F.T + L @ L.T))
 
     def update(
@@ -122,13 +109,9 @@ class ExtendedKalmanFilter:
         """
         n = model.state_dim
         p = model.measurement_dim
-        x = check_vector("state.x", state.x, n)
-        P = check_square("state.P", state.P, n)
+        x, P = check_state(state, n)
         zv = check_measurement(z, p)
-        if measurement_noise_sqrt is None:
-            Rs = check_factor("model.measurement_noise_sqrt", model.measurement_noise_sqrt(), p)
-        else:
-            Rs = check_factor("measurement_noise_sqrt", measurement_noise_sqrt, p)
+        Rs = measurement_noise_factor(model, measurement_noise_sqrt, p)
         z_hat = _check_output("model.h", model.h(x, u), (p,))
         H = _check_output("model.measurement_jacobian", model.measurement_jacobian(x, u), (p, n))
         return joseph_update(state, x, P, zv, z_hat, H, Rs @ Rs.T, self.gate_threshold)

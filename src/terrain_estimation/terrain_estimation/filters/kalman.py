@@ -25,13 +25,17 @@ from .base import Array, GaussianState, UpdateInfo, check_square, check_vector, 
 from .sigma_points import cholesky, solve_lower
 
 __all__ = [
+    "GatedFilter",
     "KalmanFilter",
     "check_measurement",
+    "check_state",
     "initial_gaussian",
     "check_covariance",
     "check_gate_threshold",
     "check_factor",
     "joseph_update",
+    "measurement_noise_factor",
+    "process_noise_factor",
     "state_mean",
     "symmetrise",
     "whiten_innovation",
@@ -110,6 +114,40 @@ def check_factor(name: str, value: Any, rows: int) -> Array:
     return arr
 
 
+def process_noise_factor(model: Any, x: Array, u: Any, dt: float, override: Any, n: int) -> Array:
+    """The step's checked ``√Q_k`` ``(n, q)``: the caller's ``process_noise_sqrt`` or, when None, the model's.
+
+    Raises:
+        ValueError: naming ``process_noise_sqrt`` or ``model.process_noise_sqrt``.
+    """
+    if override is None:
+        return check_factor("model.process_noise_sqrt", model.process_noise_sqrt(x, u, dt), n)
+    return check_factor("process_noise_sqrt", override, n)
+
+
+def measurement_noise_factor(model: Any, override: Any, p: int) -> Array:
+    """The update's checked ``√R`` ``(p, r)``: the caller's ``measurement_noise_sqrt`` or, when None, the model's.
+
+    Raises:
+        ValueError: naming ``measurement_noise_sqrt`` or ``model.measurement_noise_sqrt``.
+    """
+    if override is None:
+        return check_factor("model.measurement_noise_sqrt", model.measurement_noise_sqrt(), p)
+    return check_factor("measurement_noise_sqrt", override, p)
+
+
+def check_state(state: Any, n: int, *, factor: bool = False) -> tuple[Array, Array]:
+    """``(x, P)`` of a state as float ``(n,)`` and ``(n, n)`` arrays, or ``(x, S)`` with ``factor``.
+
+    Raises:
+        ValueError: naming ``state.x``, ``state.P`` or ``state.S``.
+    """
+    x = check_vector("state.x", state.x, n)
+    if factor:
+        return x, check_square("state.S", state.S, n)
+    return x, check_square("state.P", state.P, n)
+
+
 def state_mean(state: Any) -> Array:
     """``state.x`` as a float 1-D array (its length defines ``n`` for a linear filter).
 
@@ -167,8 +205,8 @@ def whiten_innovation(
 
 
 @dataclass(frozen=True, kw_only=True)
-class KalmanFilter:
-    """Linear Kalman filter with the Joseph-form covariance update.
+class GatedFilter:
+    """What every filter of this package is configured with: its measurement gate.
 
     Args:
         gate_threshold: Mahalanobis gate on the NIS (e.g. a χ²_p quantile);
@@ -180,6 +218,11 @@ class KalmanFilter:
 
     def __post_init__(self) -> None:
         check_gate_threshold(self.gate_threshold)
+
+
+@dataclass(frozen=True, kw_only=True)
+class KalmanFilter(GatedFilter):
+    """Linear Kalman filter with the Joseph-form covariance update, gated (:class:`GatedFilter`)."""
 
     def initial_state(self, x0: Any, P0: Any) -> GaussianState:
         """``GaussianState`` from a mean ``(n,)`` and a symmetric covariance ``(n, n)``."""

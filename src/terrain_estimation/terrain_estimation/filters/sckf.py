@@ -37,15 +37,15 @@ from typing import Any
 
 import numpy as np
 
-from .base import (
-    Array,
-    SqrtGaussianState,
-    StateSpaceModel,
-    UpdateInfo,
-    check_square,
-    check_vector,
+from .base import Array, SqrtGaussianState, StateSpaceModel, UpdateInfo
+from .kalman import (
+    GatedFilter,
+    check_measurement,
+    check_state,
+    initial_gaussian,
+    measurement_noise_factor,
+    process_noise_factor,
 )
-from .kalman import check_factor, check_gate_threshold, check_measurement, initial_gaussian
 from .sigma_points import _tria_rows, cubature_points, robust_sqrt, solve_lower
 from .ukf import check_points
 
@@ -53,19 +53,8 @@ __all__ = ["SquareRootCubatureKalmanFilter"]
 
 
 @dataclass(frozen=True, kw_only=True)
-class SquareRootCubatureKalmanFilter:
-    """Square-root CKF carrying ``SqrtGaussianState(x, S)`` (MODELS.md A.5).
-
-    Args:
-        gate_threshold: Mahalanobis gate on the NIS (e.g. a χ²_p quantile);
-            ``None`` disables gating. A rejected measurement returns the
-            prior state unchanged with ``accepted=False``.
-    """
-
-    gate_threshold: float | None = None
-
-    def __post_init__(self) -> None:
-        check_gate_threshold(self.gate_threshold)
+class SquareRootCubatureKalmanFilter(GatedFilter):
+    """Square-root CKF carrying ``SqrtGaussianState(x, S)`` (MODELS.md A.5), gated (:class:`~.kalman.GatedFilter`)."""
 
     def initial_state(self, x0: Any, P0: Any) -> SqrtGaussianState:
         """``SqrtGaussianState`` from a finite mean ``(n,)`` and a symmetric ``P0``.
@@ -104,12 +93,8 @@ class SquareRootCubatureKalmanFilter:
             ValueError: on wrong shapes or non-finite model outputs.
         """
         n = model.state_dim
-        x = check_vector("state.x", state.x, n)
-        S = check_square("state.S", state.S, n)
-        if process_noise_sqrt is None:
-            L = check_factor("model.process_noise_sqrt", model.process_noise_sqrt(x, u, dt), n)
-        else:
-            L = check_factor("process_noise_sqrt", process_noise_sqrt, n)
+        x, S = check_state(state, n, factor=True)
+        L = process_noise_factor(model, x, u, dt, process_noise_sqrt, n)
         ps = cubature_points(n)
         X = x + ps.unit @ S.T  # (14)
         Xs = check_points("model.f", model.f(X, u, dt), 2 * n, n)  # (15)
@@ -146,26 +131,13 @@ class SquareRootCubatureKalmanFilter:
         """
         n = model.state_dim
         p = model.measurement_dim
-        x = check_vector("state.x", state.x, n)
-        S = check_square("state.S", state.S, n)
+        x, S = check_state(state, n, factor=True)
         zv = check_measurement(z, p)
-        if measurement_noise_sqrt is None:
-            Rs = check_factor("model.measurement_noise_sqrt", model.measurement_noise_sqrt(), p)
-        else:
-            Rs = check_factor("measurement_noise_sqrt", measurement_noise_sqrt, p)
+        Rs = measurement_noise_factor(model, measurement_noise_sqrt, p)
         nu, S_z, nis, post = self._update_core(x, S, zv, model.h, u, Rs, p)
-        info_extras = {"innovation_cov_sqrt": S_z}
-        if post is None:
-            info = UpdateInfo(
-                innovation=nu,
-                innovation_cov=S_z @ S_z.T,
-                nis=nis,
-                accepted=False,
-                extras=info_extras,
-            )
-            return state, info
-        info = UpdateInfo(innovation=nu, innovation_cov=S_z @ S_z.T, nis=nis, accepted=True, extras=info_extras)
-        return SqrtGaussianState(x=post[0], S=post[1]), info
+        extras = {"innovation_cov_sqrt": S_z}
+        info = UpdateInfo(innovation=nu, innovation_cov=S_z @ S_z.T, nis=nis, accepted=post is not None, extras=extras)
+        return (state if post is None else SqrtGaussianState(x=post[0], S=post[1])), info
 
     def _update_core(
         self, x: Array, S: Array, zv: Array, h: Callable[[Array, Any], Array], u: Any, Rs: Array, p: int

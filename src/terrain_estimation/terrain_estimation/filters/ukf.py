@@ -28,19 +28,14 @@ from typing import Any
 
 import numpy as np
 
-from .base import (
-    Array,
-    GaussianState,
-    StateSpaceModel,
-    UpdateInfo,
-    check_square,
-    check_vector,
-)
+from .base import Array, GaussianState, StateSpaceModel, UpdateInfo
 from .kalman import (
-    check_factor,
-    check_gate_threshold,
+    GatedFilter,
     check_measurement,
+    check_state,
     initial_gaussian,
+    measurement_noise_factor,
+    process_noise_factor,
     symmetrise,
     whiten_innovation,
 )
@@ -111,23 +106,13 @@ class MeasurementMoments:
 
 
 @dataclass(frozen=True, kw_only=True)
-class SigmaPointKalmanFilter(ABC):
-    """Additive-noise sigma-point Kalman filter with full covariance.
+class SigmaPointKalmanFilter(GatedFilter, ABC):
+    """Additive-noise sigma-point Kalman filter with full covariance, gated (:class:`~.kalman.GatedFilter`).
 
     Subclasses choose the point set (:meth:`point_set`). ``P`` is factored
     with :func:`~.sigma_points.robust_sqrt` to draw points: Cholesky, with a
     PSD projection only if rounding has made ``P`` indefinite.
-
-    Args:
-        gate_threshold: Mahalanobis gate on the NIS (e.g. a χ²_p quantile);
-            ``None`` disables gating. A rejected measurement returns the
-            prior state unchanged with ``accepted=False``.
     """
-
-    gate_threshold: float | None = None
-
-    def __post_init__(self) -> None:
-        check_gate_threshold(self.gate_threshold)
 
     @abstractmethod
     def point_set(self, n: int) -> SigmaPointSet:
@@ -148,12 +133,8 @@ class SigmaPointKalmanFilter(ABC):
     ) -> SigmaPointPrediction:
         """The prediction as its parts ``x̄, P̄0, Q_k`` (see :meth:`predict`)."""
         n = model.state_dim
-        x = check_vector("state.x", state.x, n)
-        P = check_square("state.P", state.P, n)
-        if process_noise_sqrt is None:
-            L = check_factor("model.process_noise_sqrt", model.process_noise_sqrt(x, u, dt), n)
-        else:
-            L = check_factor("process_noise_sqrt", process_noise_sqrt, n)
+        x, P = check_state(state, n)
+        L = process_noise_factor(model, x, u, dt, process_noise_sqrt, n)
         x_new, P0 = self._propagate_points(x, P, model, u, dt)
         return SigmaPointPrediction(x=x_new, P0=P0, Q=L @ L.T)
 
@@ -219,12 +200,8 @@ class SigmaPointKalmanFilter(ABC):
         """
         n = model.state_dim
         p = model.measurement_dim
-        x = check_vector("state.x", state.x, n)
-        P = check_square("state.P", state.P, n)
-        if measurement_noise_sqrt is None:
-            Rs = check_factor("model.measurement_noise_sqrt", model.measurement_noise_sqrt(), p)
-        else:
-            Rs = check_factor("measurement_noise_sqrt", measurement_noise_sqrt, p)
+        x, P = check_state(state, n)
+        Rs = measurement_noise_factor(model, measurement_noise_sqrt, p)
         z_hat, P_zz, P_xz, R = self._moments(x, P, Rs, model, u)
         return MeasurementMoments(z_hat=z_hat, P_zz=P_zz, P_xz=P_xz, R=R)
 
@@ -270,11 +247,8 @@ class SigmaPointKalmanFilter(ABC):
         mm = self.measurement_moments(state, model, u, measurement_noise_sqrt=measurement_noise_sqrt)
         nu = zv - mm.z_hat
         post, nis = self._gain_update(state.x, state.P, nu, mm.P_zz, mm.P_xz)
-        if post is None:
-            return state, UpdateInfo(innovation=nu, innovation_cov=mm.P_zz, nis=nis, accepted=False)
-        return GaussianState(x=post[0], P=post[1]), UpdateInfo(
-            innovation=nu, innovation_cov=mm.P_zz, nis=nis, accepted=True
-        )
+        info = UpdateInfo(innovation=nu, innovation_cov=mm.P_zz, nis=nis, accepted=post is not None)
+        return (state if post is None else GaussianState(x=post[0], P=post[1])), info
 
     def _gain_update(
         self, x: Any, P: Any, nu: Array, P_zz: Array, P_xz: Array

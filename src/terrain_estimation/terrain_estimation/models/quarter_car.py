@@ -127,7 +127,21 @@ class _BilinearKtotModel:
     _q_log_ks_per_step: float = 0.0
     _log_ks_range: tuple[float, float] = _LOG_KS_RANGE
 
-    def _finish_init(self) -> None:
+    def _finish_init(self, p: QuarterCarParams | LRVParams) -> None:
+        """The settings both models take from their parameters, once the subclass has set its matrices."""
+        self._sigma_q = np.sqrt(np.asarray(p.q_diag, dtype=float))
+        self._sqrt_r = np.sqrt(np.asarray(p.r_diag, dtype=float))
+        self._k_series = p.k_series
+        self._kmin = p.ktot_min_frac * p.k_series
+        self._kmax = p.ktot_max_frac * p.k_series
+        self._method = p.discretisation
+        self._noise_form = p.ktot_noise_form
+        self._q_ktot_per_step = p.q_ktot_per_step
+        self._ktot_step_dt = p.ktot_step_dt
+        self._jacobian_form = p.ekf_jacobian
+        self._stiffness_state = p.stiffness_state
+        self._q_log_ks_per_step = p.q_log_ks_per_step
+        self._log_ks_range = (float(p.log_ks_range[0]), float(p.log_ks_range[1]))
         n = self._a0.shape[0]
         k = n - 1
         # The decoupling that lets √Q_k be written column by column (A.4):
@@ -515,20 +529,7 @@ class QuarterCarModel(_BilinearKtotModel):
             ]
         )
         self._rows = np.array([1, 3])  # (A.4): rows 2 and 4 of A(x)
-        self._sigma_q = np.sqrt(np.asarray(p.q_diag, dtype=float))
-        self._sqrt_r = np.sqrt(np.asarray(p.r_diag, dtype=float))
-        self._k_series = p.k_t
-        self._kmin = p.ktot_min_frac * p.k_t
-        self._kmax = p.ktot_max_frac * p.k_t
-        self._method = p.discretisation
-        self._noise_form = p.ktot_noise_form
-        self._q_ktot_per_step = p.q_ktot_per_step
-        self._ktot_step_dt = p.ktot_step_dt
-        self._jacobian_form = p.ekf_jacobian
-        self._stiffness_state = p.stiffness_state
-        self._q_log_ks_per_step = p.q_log_ks_per_step
-        self._log_ks_range = (float(p.log_ks_range[0]), float(p.log_ks_range[1]))
-        self._finish_init()
+        self._finish_init(p)
 
 
 class LRVModel(_BilinearKtotModel):
@@ -565,17 +566,4 @@ class LRVModel(_BilinearKtotModel):
             ]
         )
         self._rows = np.array([1])
-        self._sigma_q = np.sqrt(np.asarray(p.q_diag, dtype=float))
-        self._sqrt_r = np.sqrt(np.asarray(p.r_diag, dtype=float))
-        self._k_series = p.k
-        self._kmin = p.ktot_min_frac * p.k
-        self._kmax = p.ktot_max_frac * p.k
-        self._method = p.discretisation
-        self._noise_form = p.ktot_noise_form
-        self._q_ktot_per_step = p.q_ktot_per_step
-        self._ktot_step_dt = p.ktot_step_dt
-        self._jacobian_form = p.ekf_jacobian
-        self._stiffness_state = p.stiffness_state
-        self._q_log_ks_per_step = p.q_log_ks_per_step
-        self._log_ks_range = (float(p.log_ks_range[0]), float(p.log_ks_range[1]))
-        self._finish_init()
+        self._finish_init(p)

@@ -17,6 +17,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from terrain_estimation.checks import check_fields
+
 __all__ = ["QuarterCarParams", "LRVParams", "Discretisation", "KtotNoiseForm", "JacobianForm", "StiffnessState"]
 
 Discretisation = Literal["taylor4", "expm"]
@@ -34,12 +36,8 @@ _LOG_KS_RANGE = (-math.log(100.0), math.log(100.0))
 
 def _check_common(params: Any, positive: tuple[str, ...], n: int, p: int) -> None:
     """The checks the 2-DOF and the LRV parameter sets share (``positive``: the names that must be > 0)."""
-    for name in positive:
-        value = getattr(params, name)
-        if not (np.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be finite and > 0, got {value}")
-    if not (np.isfinite(params.c) and params.c >= 0):
-        raise ValueError(f"c must be finite and >= 0, got {params.c}")
+    check_fields(params, positive)
+    check_fields(params, ("c",), rule="non_negative")
     q_diag, r_diag = tuple(params.q_diag), tuple(params.r_diag)
     q_ktot_per_step, ktot_step_dt = params.q_ktot_per_step, params.ktot_step_dt
     ktot_noise_form, discretisation, ekf_jacobian = params.ktot_noise_form, params.discretisation, params.ekf_jacobian
