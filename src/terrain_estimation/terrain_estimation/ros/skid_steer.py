@@ -51,7 +51,8 @@ from std_msgs.msg import Header
 from terrain_estimation.estimators.skid_steer import SkidSteerEstimate, SkidSteerEstimator
 from terrain_estimation.models.skid_steer import axle_count
 from terrain_estimation.params import ParamValue
-from terrain_estimation.ros.framework import AdapterHealth, TopicSpec, divergence_errors, input_frame
+from terrain_estimation.ros.adapters import AdapterHealth, TopicSpec
+from terrain_estimation.ros.parameters import divergence_errors, input_frame, namespaced_frame
 from terrain_estimation.ros.skid_steer_params import (
     ON_TIMEOUT,
     PARAMETERS,
@@ -301,19 +302,14 @@ def _odom_msg(e: SkidSteerEstimate, stamp: Time, odom_frame: str, base_frame: st
     return m
 
 
-def _frame(namespace: str, frame: str) -> str:
-    ns = namespace.strip("/")
-    return f"{ns}/{frame}" if ns else frame
-
-
 class SkidSteerAdapter:
     """Messages ↔ :class:`SkidSteerEstimator` for one skid-steered vehicle."""
 
     def __init__(self, values: Mapping[str, ParamValue], namespace: str) -> None:
         self.config = estimator_config(values)
         self.estimator = SkidSteerEstimator(self.config)
-        self.base_frame = _frame(namespace, str(values["frames.base_link"]))
-        self.odom_frame = _frame(namespace, str(values["frames.odom"]))
+        self.base_frame = namespaced_frame(namespace, str(values["frames.base_link"]))
+        self.odom_frame = namespaced_frame(namespace, str(values["frames.odom"]))
         self.left_joint = str(values["joints.left_motor"])
         self.right_joint = str(values["joints.right_motor"])
         self.inputs: Sequence[TopicSpec] = (

@@ -25,7 +25,8 @@ from terrain_estimation.filters.noise_adaptation import InnovationNoiseConfig
 from terrain_estimation.models.skid_steer import SkidSteerParams
 from terrain_estimation.models.skid_steer_scales import RESISTANCE_NAME, SCALE_NAMES, TireScaleConfig
 from terrain_estimation.params import ParamSpec, ParamValue, default_config_path, load_parameter_file
-from terrain_estimation.ros.framework import divergence_config, divergence_specs, input_specs
+from terrain_estimation.ros.parameters import divergence_config, divergence_specs, fixed_floats, input_specs, kind_specs
+from terrain_estimation.ros.parameters import float_value as _f
 
 __all__ = [
     "VEHICLE_SPECS_SKID_STEER",
@@ -451,22 +452,14 @@ _INPUT_SPECS: tuple[ParamSpec, ...] = (
 
 def specs_for(kind: str = "skid_steer") -> tuple[ParamSpec, ...]:
     """The estimator's parameter specs (one vehicle kind)."""
-    if kind != "skid_steer":
-        raise ValueError(f"unknown skid-steer vehicle kind {kind!r}")
-    return VEHICLE_SPECS_SKID_STEER + _ESTIMATOR_SPECS + _INPUT_SPECS
+    return kind_specs(kind, "skid_steer", "skid-steer", VEHICLE_SPECS_SKID_STEER, _ESTIMATOR_SPECS, _INPUT_SPECS)
 
 
 PARAMETERS = specs_for()
 
 
-def _f(values: Mapping[str, ParamValue], name: str) -> float:
-    return float(values[name])
-
-
 def _triple(values: Mapping[str, ParamValue], name: str) -> tuple[float, float, float]:
-    v = [float(x) for x in values[name]]
-    if len(v) != 3:
-        raise ValueError(f"{name} must hold 3 values ([vx, vy, r] order), got {len(v)}: {v}")
+    v = fixed_floats(values, name, 3, "[vx, vy, r] order")
     return v[0], v[1], v[2]
 
 

@@ -38,15 +38,16 @@ from terrain_estimation.estimators.soil_stiffness import (
 from terrain_estimation.models.quarter_car import LRVParams, QuarterCarParams
 from terrain_estimation.models.quarter_car_road import RoadInputParams
 from terrain_estimation.params import ParamSpec, ParamValue
-from terrain_estimation.ros.framework import (
-    AdapterHealth,
-    TopicSpec,
+from terrain_estimation.ros.adapters import AdapterHealth, TopicSpec
+from terrain_estimation.ros.parameters import (
     divergence_config,
     divergence_errors,
     divergence_specs,
     input_frame,
     input_specs,
+    namespaced_frame,
 )
+from terrain_estimation.ros.parameters import float_value as _f
 from terrain_estimation.ros.time import sec_to_stamp, stamp_to_ns
 from terrain_msgs.msg import SoilStiffness
 
@@ -410,10 +411,6 @@ PROFILE_GAPPY_FRACTION_WARN = 0.05
 """Diagnostics turn WARN when more than this fraction of the window's steps lost profile samples."""
 
 
-def _f(values: Mapping[str, ParamValue], name: str) -> float:
-    return float(values[name])
-
-
 def estimator_config(values: Mapping[str, ParamValue]) -> SoilStiffnessEstimatorConfig:
     """The core estimator's configuration from validated parameter values.
 
@@ -547,8 +544,7 @@ class SoilStiffnessAdapter:
         self.kind = self.config.vehicle
         self.estimator = make_estimator(self.config)
         self._profile_free = self.config.road_input == "stochastic"
-        ns = namespace.strip("/")
-        self.frame_id = f"{ns}/{values['frames.base_link']}" if ns else str(values["frames.base_link"])
+        self.frame_id = namespaced_frame(namespace, str(values["frames.base_link"]))
         self.wheel_radius = _f(values, "vehicle.wheel_radius")
         self.pair_timeout_ns = round(_f(values, "estimator.pair_timeout") * 1e9)
         gravity = _f(values, "estimator.gravity")

@@ -52,7 +52,17 @@ from terrain_estimation.ros.framework import JudgedInputs
 from terrain_estimation.ros.validation import InputGuard, first_nonfinite
 from terrain_estimation.vehicles import VEHICLES, estimator_parameters, get_vehicle
 
-__all__ = ["EstimationRun", "config_values", "estimate_bag", "run_adapter", "main", "numeric_fields", "topic_name"]
+__all__ = [
+    "EstimationRun",
+    "add_output_arguments",
+    "config_values",
+    "estimate_bag",
+    "run_adapter",
+    "main",
+    "numeric_fields",
+    "parse_overrides",
+    "topic_name",
+]
 
 
 def topic_name(namespace: str, relative: str) -> str:
@@ -431,9 +441,22 @@ def _summary_lines(run: EstimationRun) -> Iterator[str]:
             yield f"  vs ground truth {name}: rms error {rms:.6g}, final error {final:.6g} ({pct})"
 
 
-def _parse_overrides(items: Sequence[str]) -> dict[str, Any]:
+def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
     """``--param NAME=VALUE`` items as ``{name: value}`` (values parsed as YAML, bounded: :func:`parse_override`)."""
     return dict(parse_override(item) for item in items)
+
+
+def add_output_arguments(parser: argparse.ArgumentParser, *, output: str, overwrite: str, namespace: str) -> None:
+    """The options of a tool that writes a vehicle's bag (``terrain-estimate``, ``terrain-simulate``).
+
+    ``-o/--output``, ``--overwrite``, ``--namespace`` (with the help texts given), ``--config`` and
+    ``--param NAME=VALUE`` (repeated; read with :func:`parse_overrides`).
+    """
+    parser.add_argument("-o", "--output", required=True, help=output)
+    parser.add_argument("--overwrite", action="store_true", help=overwrite)
+    parser.add_argument("--namespace", help=namespace)
+    parser.add_argument("--config", help="parameter file (default: config/<vehicle>.yaml)")
+    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="override a parameter")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -444,17 +467,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("bag", help="input bag directory (mcap or sqlite3)")
     parser.add_argument("--vehicle", required=True, choices=sorted(VEHICLES), help="vehicle model")
-    parser.add_argument("-o", "--output", required=True, help="output bag directory (must not exist; see --overwrite)")
-    parser.add_argument(
-        "--overwrite", action="store_true", help="replace the output if it is a previous bag (never the input)"
+    add_output_arguments(
+        parser,
+        output="output bag directory (must not exist; see --overwrite)",
+        overwrite="replace the output if it is a previous bag (never the input)",
+        namespace="namespace the bag was recorded under (default: the vehicle's)",
     )
-    parser.add_argument("--namespace", help="namespace the bag was recorded under (default: the vehicle's)")
-    parser.add_argument("--config", help="parameter file (default: config/<vehicle>.yaml)")
-    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="override a parameter")
     args = parser.parse_args(argv)
 
     def body() -> int:
-        overrides = _parse_overrides(args.param)
+        overrides = parse_overrides(args.param)
         # refused before the run, not after minutes of it
         check_output_path(args.output, overwrite=args.overwrite, inputs=[args.bag])
         print(f"estimating {args.bag} as {args.vehicle} ...", file=sys.stderr)

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from terrain_estimation.ros.executable import build_node, node_main
-from terrain_estimation.ros.framework import SimulatorNode
+from terrain_estimation.ros.simulator_node import SimulatorNode
 from vehicle_sim.ros.registry import SIMULATORS, get_simulator
 
 __all__ = ["make_simulator_node", "main"]

@@ -28,7 +28,8 @@ from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import Imu, JointState
 
 from terrain_estimation.params import ParamSpec, ParamValue
-from terrain_estimation.ros.framework import TopicSpec
+from terrain_estimation.ros.adapters import TopicSpec
+from terrain_estimation.ros.parameters import float_fields, namespaced_frame
 from terrain_estimation.ros.soil_stiffness import VEHICLE_SPECS_LRV, VEHICLE_SPECS_QUARTER_CAR
 from terrain_estimation.ros.time import sec_to_stamp
 from terrain_msgs.msg import SoilStiffness
@@ -36,7 +37,7 @@ from vehicle_sim.plants.quarter_car import QuarterCarSimulator
 from vehicle_sim.plants.quarter_car_effects import QuarterCarEffects
 from vehicle_sim.plants.quarter_car_scenario import QuarterCarSample, Scenario, SpeedProfile
 from vehicle_sim.plants.quarter_car_vehicles import LRVVehicle, QuarterCarVehicle
-from vehicle_sim.ros.adapter import SimAdapter, floats, frame_id
+from vehicle_sim.ros.adapter import SimAdapter
 from vehicle_sim.terrain.profiles import ISO8608_CLASSES, RoadProfile, flat_profile, iso8608_profile, meadow_c_standin
 from vehicle_sim.terrain.soils import SOILS, SoilPath, soil_by_name
 
@@ -251,7 +252,7 @@ def make_vehicle(kind: str, values: Mapping[str, ParamValue]) -> QuarterCarVehic
             damper_reference=values["vehicle.damper_reference"],
         )
     return QuarterCarVehicle(
-        **floats(
+        **float_fields(
             values,
             "vehicle",
             (
@@ -313,7 +314,7 @@ class QuarterCarSimAdapter(SimAdapter):
         self.simulator = QuarterCarSimulator(self.vehicle, self.scenario, int(values["seed"]))
         self.period = self.scenario.sensor_period
         self.frames = {
-            key: frame_id(namespace, str(values[f"frames.{key}"]))
+            key: namespaced_frame(namespace, str(values[f"frames.{key}"]))
             for key in ("body_imu", "wheel_imu", "odom", "base_link")
         }
         self.accel_variance = float(values["sensors.accel_noise_variance"])

@@ -3,25 +3,16 @@
 from __future__ import annotations
 
 import functools
-import importlib
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
-from terrain_estimation.params import (
-    ParamSpec,
-    ParamValue,
-    default_config_path,
-    load_parameter_file,
-    resolve_parameters,
-)
+from terrain_estimation.params import ParamSpec, ParamValue
+from terrain_estimation.ros.registry import NodeEntry, lookup
 
 __all__ = ["SimulatorEntry", "SIMULATORS", "get_simulator", "simulator_parameters"]
 
 
-@dataclass(frozen=True)
-class SimulatorEntry:
+class SimulatorEntry(NodeEntry):
     """How to build one vehicle's simulator.
 
     Attributes:
@@ -31,24 +22,14 @@ class SimulatorEntry:
         module: module with ``specs_for(kind)`` and ``make_adapter(values, ns, kind)``.
     """
 
-    name: str
-    namespace: str
-    node_name: str
-    module: str
-
-    def _load(self) -> Any:
-        return importlib.import_module(self.module)
-
-    @property
-    def specs(self) -> Sequence[ParamSpec]:
-        return tuple(self._load().specs_for(self.name))
-
     @property
     def make_adapter(self) -> Callable[[Mapping[str, ParamValue], str], Any]:
         return functools.partial(self._load().make_adapter, kind=self.name)
 
-    def config_path(self) -> Path:
-        return default_config_path(self.name)
+    def common_specs(self) -> Sequence[ParamSpec]:
+        from terrain_estimation.ros.simulator_node import SimulatorNode
+
+        return SimulatorNode.COMMON_SPECS
 
 
 SIMULATORS: dict[str, SimulatorEntry] = {
@@ -60,29 +41,10 @@ SIMULATORS: dict[str, SimulatorEntry] = {
 
 
 def get_simulator(name: str) -> SimulatorEntry:
-    try:
-        return SIMULATORS[name]
-    except KeyError:
-        raise ValueError(f"unknown vehicle {name!r}: expected one of {', '.join(SIMULATORS)}") from None
+    return lookup(SIMULATORS, name)
 
 
-def simulator_parameters(
-    entry: SimulatorEntry,
-    config: str | Path | None = None,
-    overrides: Mapping[str, Any] | None = None,
-    *,
-    source: str = "--param",
-) -> dict[str, ParamValue]:
-    """Validated simulator parameters: defaults < config file < overrides.
-
-    Strict, as :func:`terrain_estimation.vehicles.estimator_parameters`: a name
-    the simulator does not declare, in the file (``/**`` included) or in
-    ``overrides`` (called ``source`` in the error), is a ParameterError.
-    """
-    from terrain_estimation.ros.framework import SimulatorNode
-
-    specs = tuple(SimulatorNode.COMMON_SPECS) + tuple(entry.specs)
-    path = Path(config) if config is not None else entry.config_path()
-    values = load_parameter_file(path, [entry.node_name], specs=specs) if path.exists() or config else {}
-    values.update(overrides or {})
-    return resolve_parameters(specs, values, strict=True, source=source)
+#: ``simulator_parameters(entry, config=None, overrides=None, *, source="--param")``: validated simulator
+#: parameters, defaults < config file < overrides, strict as the estimators' (:meth:`NodeEntry.parameters
+#: <terrain_estimation.ros.registry.NodeEntry.parameters>`).
+simulator_parameters = SimulatorEntry.parameters

@@ -53,8 +53,17 @@ from sensor_msgs.msg import Imu, JointState
 
 from terrain_estimation.models.rover import WHEELS
 from terrain_estimation.params import ParamSpec, ParamValue
-from terrain_estimation.ros.framework import TopicSpec
-from terrain_estimation.ros.rover import VEHICLE_SPECS_ROVER, vehicle_params
+from terrain_estimation.ros.adapters import TopicSpec
+from terrain_estimation.ros.parameters import (
+    check_kind,
+    field_specs,
+    fixed_floats,
+    float_fields,
+    kind_specs,
+    namespaced_frame,
+)
+from terrain_estimation.ros.parameters import float_value as _f
+from terrain_estimation.ros.rover_params import VEHICLE_SPECS_ROVER, vehicle_params
 from terrain_estimation.ros.time import sec_to_stamp
 from terrain_msgs.msg import WheelTerrain, WheelTerrainArray
 from vehicle_sim.plants.rover import RoverSimulator
@@ -67,7 +76,7 @@ from vehicle_sim.plants.rover_scenario import (
     RoverScenario,
     RoverSensorNoise,
 )
-from vehicle_sim.ros.adapter import SimAdapter, check_kind, field_specs, floats, frame_id
+from vehicle_sim.ros.adapter import SimAdapter
 from vehicle_sim.terrain.wong_reece import TABLE_II_SOIL, WongReeceSoil
 
 __all__ = ["SCENARIO_SPECS", "PARAMETERS", "RoverSimAdapter", "make_adapter", "make_scenario", "specs_for"]
@@ -337,39 +346,28 @@ SCENARIO_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
-def _f(values: Mapping[str, ParamValue], name: str) -> float:
-    return float(values[name])
-
-
-def _floats(values: Mapping[str, ParamValue], name: str, size: int, what: str) -> tuple[float, ...]:
-    v = tuple(float(x) for x in values[name])
-    if len(v) != size:
-        raise ValueError(f"{name} must hold {size} values ({what}), got {len(v)}: {list(v)}")
-    return v
-
-
 def make_scenario(values: Mapping[str, ParamValue]) -> RoverScenario:
     """The plant's scenario from validated parameter values.
 
     Raises:
         ValueError: inconsistent values (a bias list of the wrong length, an impossible soil …).
     """
-    soil = WongReeceSoil(**floats(values, "soil", (name for name, *_ in _SOIL_FIELDS)))
+    soil = WongReeceSoil(**float_fields(values, "soil", (name for name, *_ in _SOIL_FIELDS)))
     changed: dict[str, Any] = {}
     if values["effects.soil_change"]:
         changed = {
             "soil_change_distance": _f(values, "effects.soil_change_distance"),
             "soil_change_soil": WongReeceSoil(
                 **{
-                    **floats(values, "soil", (name for name, *_ in _SOIL_FIELDS)),
+                    **float_fields(values, "soil", (name for name, *_ in _SOIL_FIELDS)),
                     "cohesion": _f(values, "effects.soil_change_cohesion"),
                     "friction_angle": _f(values, "effects.soil_change_friction_angle"),
                     "shear_deformation_modulus": _f(values, "effects.soil_change_shear_deformation_modulus"),
                 }
             ),
         }
-    bias = _floats(values, "effects.load_cell_bias", 3, "rear, middle, front")
-    accel = _floats(values, "effects.imu_accel_bias", 2, "x, z")
+    bias = fixed_floats(values, "effects.load_cell_bias", 3, "rear, middle, front")
+    accel = fixed_floats(values, "effects.imu_accel_bias", 2, "x, z")
     effects = RoverEffects(
         load_cell_bias=(bias[0], bias[1], bias[2]),
         load_cell_crosstalk=_f(values, "effects.load_cell_crosstalk"),
@@ -391,9 +389,9 @@ def make_scenario(values: Mapping[str, ParamValue]) -> RoverScenario:
         desired_speed=_f(values, "scenario.desired_speed"),
         params=vehicle_params(values),
         soil=soil,
-        controller=RoverController(**floats(values, "controller", (name for name, *_ in _CONTROLLER_FIELDS))),
+        controller=RoverController(**float_fields(values, "controller", (name for name, *_ in _CONTROLLER_FIELDS))),
         sensors=RoverSensorNoise(
-            **floats(values, "sensors", (name for name, *_ in _NOISE_FIELDS)),
+            **float_fields(values, "sensors", (name for name, *_ in _NOISE_FIELDS)),
             quantise=bool(values["sensors.quantise"]),
         ),
         effects=effects,
@@ -438,8 +436,8 @@ class RoverSimAdapter(SimAdapter):
         self.simulator = RoverSimulator(self.scenario)
         self.period = 1.0 / CONTROL_RATE
         self.two_axis = int(values["sensors.load_cell_axes"]) == 2
-        self.frames = {key: frame_id(namespace, str(values[f"frames.{key}"])) for key in ("imu", "base_link")}
-        self.cell_frames = {w: frame_id(namespace, str(values[f"frames.{w}_load_cell"])) for w in WHEELS}
+        self.frames = {key: namespaced_frame(namespace, str(values[f"frames.{key}"])) for key in ("imu", "base_link")}
+        self.cell_frames = {w: namespaced_frame(namespace, str(values[f"frames.{w}_load_cell"])) for w in WHEELS}
         # joint_states order: the bogie, then the wheels in WHEELS order (rear, middle, front).
         self.joints = [str(values["joints.bogie"])] + [str(values[f"joints.{w}_wheel"]) for w in WHEELS]
         noise = self.scenario.sensors
@@ -509,8 +507,7 @@ class RoverSimAdapter(SimAdapter):
 
 def specs_for(kind: str = "rover") -> tuple[ParamSpec, ...]:
     """Simulator specs: the estimator's vehicle parameters (one config file serves both) plus the plant's."""
-    check_kind(kind, "rover", "rover")
-    return VEHICLE_SPECS_ROVER + SCENARIO_SPECS
+    return kind_specs(kind, "rover", "rover", VEHICLE_SPECS_ROVER, SCENARIO_SPECS)
 
 
 PARAMETERS = specs_for()

@@ -35,8 +35,9 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState
 
 from terrain_estimation.params import ParamSpec, ParamValue
-from terrain_estimation.ros.framework import TopicSpec
-from terrain_estimation.ros.skid_steer import VEHICLE_SPECS_SKID_STEER, vehicle_params
+from terrain_estimation.ros.adapters import TopicSpec
+from terrain_estimation.ros.parameters import check_kind, field_specs, float_fields, kind_specs, namespaced_frame
+from terrain_estimation.ros.skid_steer_params import VEHICLE_SPECS_SKID_STEER, vehicle_params
 from terrain_estimation.ros.time import sec_to_stamp
 from terrain_msgs.msg import SkidSteerState
 from vehicle_sim.plants.skid_steer import SkidSteerSample, SkidSteerSimulator
@@ -44,7 +45,7 @@ from vehicle_sim.plants.skid_steer_ground import SURFACES, SkidSteerGround, Surf
 from vehicle_sim.plants.skid_steer_manoeuvres import MANOEUVRES, SkidSteerScenario
 from vehicle_sim.plants.skid_steer_vehicle import SkidSteerEffects, SkidSteerSensors, SkidSteerVehicle
 from vehicle_sim.plants.tire_laws import TIRE_LAWS, MagicFormulaTire
-from vehicle_sim.ros.adapter import SimAdapter, check_kind, field_specs, floats, frame_id
+from vehicle_sim.ros.adapter import SimAdapter
 
 __all__ = ["SCENARIO_SPECS", "PARAMETERS", "SkidSteerSimAdapter", "make_adapter", "make_scenario", "specs_for"]
 
@@ -324,8 +325,10 @@ def make_scenario(values: Mapping[str, ParamValue]) -> SkidSteerScenario:
     vehicle = SkidSteerVehicle(
         nominal=vehicle_params(values),
         tire_law=str(values["plant.tire_law"]),
-        magic_formula=MagicFormulaTire(**floats(values, "plant.magic_formula", (n for n, *_ in _MAGIC_FORMULA_FIELDS))),
-        **floats(values, "plant", (name for name, *_ in _PLANT_FIELDS)),
+        magic_formula=MagicFormulaTire(
+            **float_fields(values, "plant.magic_formula", (n for n, *_ in _MAGIC_FORMULA_FIELDS))
+        ),
+        **float_fields(values, "plant", (name for name, *_ in _PLANT_FIELDS)),
     )
     bias = [float(b) for b in values["effects.accel_bias"]]
     if len(bias) != 3:
@@ -334,11 +337,11 @@ def make_scenario(values: Mapping[str, ParamValue]) -> SkidSteerScenario:
         load_transfer_dynamics=bool(values["effects.load_transfer_dynamics"]),
         tire_relaxation=bool(values["effects.tire_relaxation"]),
         accel_bias=(bias[0], bias[1], bias[2]),
-        **floats(values, "effects", _EFFECT_FLOATS),
+        **float_fields(values, "effects", _EFFECT_FLOATS),
     )
     sensors = SkidSteerSensors(
         encoder_counts_per_revolution=int(values["sensors.encoder_counts_per_revolution"]),
-        **floats(values, "sensors", _SENSOR_FLOATS),
+        **float_fields(values, "sensors", _SENSOR_FLOATS),
     )
     base = MANOEUVRES[str(values["scenario.manoeuvre"])](vehicle=vehicle, effects=effects, sensors=sensors)
     duration = float(values["scenario.duration"])
@@ -374,7 +377,9 @@ class SkidSteerSimAdapter(SimAdapter):
         self.scenario = make_scenario(values)
         self.simulator = SkidSteerSimulator(self.scenario, int(values["seed"]))
         self.period = self.scenario.sensor_period
-        self.frames = {key: frame_id(namespace, str(values[f"frames.{key}"])) for key in ("imu", "odom", "base_link")}
+        self.frames = {
+            key: namespaced_frame(namespace, str(values[f"frames.{key}"])) for key in ("imu", "odom", "base_link")
+        }
         self.joints = [str(values["joints.left_motor"]), str(values["joints.right_motor"])]
         s = self.scenario.sensors
         self.accel_variance = s.accel_noise_std**2
@@ -461,8 +466,7 @@ class SkidSteerSimAdapter(SimAdapter):
 
 def specs_for(kind: str = "skid_steer") -> tuple[ParamSpec, ...]:
     """Simulator specs: the estimator's vehicle parameters (one config file serves both) plus the plant's."""
-    check_kind(kind, "skid_steer", "skid-steer")
-    return VEHICLE_SPECS_SKID_STEER + SCENARIO_SPECS
+    return kind_specs(kind, "skid_steer", "skid-steer", VEHICLE_SPECS_SKID_STEER, SCENARIO_SPECS)
 
 
 PARAMETERS = specs_for()

@@ -25,7 +25,7 @@ from rosgraph_msgs.msg import Clock
 from terrain_estimation.bag import AtomicBagWriter
 from terrain_estimation.cli import EXIT_OK, run_cli
 from terrain_estimation.ros.time import sec_to_stamp, stamp_to_ns
-from terrain_estimation.tools.estimate import _parse_overrides, topic_name
+from terrain_estimation.tools.estimate import add_output_arguments, parse_overrides, topic_name
 from vehicle_sim.ros.registry import SIMULATORS, get_simulator, simulator_parameters
 
 __all__ = ["record", "main"]
@@ -74,13 +74,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="terrain-simulate", description=__doc__.splitlines()[0])
     parser.add_argument("--vehicle", required=True, choices=sorted(SIMULATORS))
     parser.add_argument("--duration", type=float, required=True, help="simulated seconds")
-    parser.add_argument("-o", "--output", required=True, help="output bag directory (must not exist)")
-    parser.add_argument(
-        "--overwrite", action="store_true", help="replace a previous bag at --output (never anything else)"
+    add_output_arguments(
+        parser,
+        output="output bag directory (must not exist)",
+        overwrite="replace a previous bag at --output (never anything else)",
+        namespace="namespace of the topics (default: the vehicle's)",
     )
-    parser.add_argument("--namespace", help="namespace of the topics (default: the vehicle's)")
-    parser.add_argument("--config", help="parameter file (default: config/<vehicle>.yaml)")
-    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="override a parameter")
     args = parser.parse_args(argv)
 
     def body() -> int:
@@ -90,7 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.output,
             namespace=args.namespace,
             config=args.config,
-            overrides=_parse_overrides(args.param),
+            overrides=parse_overrides(args.param),
             progress=True,
             overwrite=args.overwrite,
         )
