@@ -150,6 +150,8 @@ class FittedModel:
             autocorrelation inflation (:func:`_likelihood_ratio`).
         p_lr: Confidence of the held-out likelihood-ratio test.
         cross_fitted: ``lr`` and ``p_lr`` are over every fold (:func:`_cross_fitted`).
+        cv_drop: Held-out χ² drop against the nominal model over every fold (cross-fitted only).
+        cv_samples: Samples of that cross-fitted score (0: not cross-fitted).
         by_likelihood: Significant by the likelihood-ratio test alone (its relative
             held-out improvement is below ``min_improvement``).
         significant: Improvement over the nominal counts (p_better, min_improvement).
@@ -174,6 +176,8 @@ class FittedModel:
     lr: float = 0.0
     p_lr: float = 0.0
     cross_fitted: bool = False
+    cv_drop: float = 0.0
+    cv_samples: int = 0
     by_likelihood: bool = False
     interval: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
     nuisance_std: dict[str, float] = field(default_factory=dict)
@@ -191,8 +195,24 @@ class FittedModel:
     test_residual: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
     test_segment: NDArray[np.int_] = field(default_factory=lambda: np.zeros(0, dtype=int), repr=False)
     test_block: NDArray[np.int_] = field(default_factory=lambda: np.zeros(0, dtype=int), repr=False)
+    # The same over every fold once cross-fitted (:func:`~terrain_analysis.sim2real.significance._cross_fitted`):
+    # this model's and the nominal model's held-out residuals, segments and blocks.
+    cv_residual: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
+    cv_reference: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
+    cv_segment: NDArray[np.int_] = field(default_factory=lambda: np.zeros(0, dtype=int), repr=False)
+    cv_block: NDArray[np.int_] = field(default_factory=lambda: np.zeros(0, dtype=int), repr=False)
 
-    _INTERNAL = ("block_chi2", "block_n", "test_residual", "test_segment", "test_block")
+    _INTERNAL = (
+        "block_chi2",
+        "block_n",
+        "test_residual",
+        "test_segment",
+        "test_block",
+        "cv_residual",
+        "cv_reference",
+        "cv_segment",
+        "cv_block",
+    )
 
     @property
     def name(self) -> str:

@@ -259,8 +259,32 @@ def _cross_fitted(
         offset_seg += int(alt.test_segment.max()) + 1 if alt.test_segment.size else 0
         offset_blk += int(alt.test_block.max()) + 1 if alt.test_block.size else 0
     a, b = np.concatenate(r_fit), np.concatenate(r_ref)
-    lr, confidence = _lr_arrays(a, b, np.concatenate(seg), np.concatenate(blk))
-    return lr, confidence, float(np.dot(b, b) - np.dot(a, a)), int(a.size)
+    seg_all, blk_all = np.concatenate(seg), np.concatenate(blk)
+    lr, confidence = _lr_arrays(a, b, seg_all, blk_all)
+    drop = float(np.dot(b, b) - np.dot(a, a))
+    # Kept for comparing cross-fitted candidates on the same samples (every candidate's folds are the
+    # same interleaved sets, the nominal model's fits on them the same): :func:`_cv_view`.
+    fitted.cv_residual, fitted.cv_reference, fitted.cv_segment, fitted.cv_block = a, b, seg_all, blk_all
+    fitted.cv_drop, fitted.cv_samples = drop, int(a.size)
+    return lr, confidence, drop, int(a.size)
+
+
+def _cv_score(m: FittedModel) -> float:
+    """Penalised cross-fitted held-out score relative to the nominal model: −Δχ² + p ln n (lower is better)."""
+    return -m.cv_drop + m.added * math.log(max(m.cv_samples, 2))
+
+
+def _cv_view(m: FittedModel) -> FittedModel:
+    """``m`` with its held-out residual, segments and blocks over every fold (for :func:`_p_better`)."""
+    chi2 = float(np.dot(m.cv_residual, m.cv_residual))
+    return replace(
+        m,
+        test_residual=m.cv_residual,
+        test_segment=m.cv_segment,
+        test_block=m.cv_block,
+        test_chi2=chi2,
+        score=chi2 + m.added * math.log(max(m.cv_samples, 2)),
+    )
 
 
 def _indistinguishable(
@@ -278,6 +302,12 @@ def _indistinguishable(
     """
     if not other.significant:
         return False
+    if best.cv_samples and best.cv_samples == other.cv_samples:
+        # Both cross-fitted: compared on every fold's held-out samples (one fold holds a third of the
+        # information; a small-signal effect's change may lie mostly in the other two).
+        if _cv_score(other) - _cv_score(best) < settings.ambiguity * max(best.cv_drop, 1e-12):
+            return True
+        return _p_better(_cv_view(best), _cv_view(other)) < settings.significance
     excess = max(nominal.test_chi2 - best.test_chi2, 1e-12)
     if other.score - best.score < settings.ambiguity * excess:
         return True
