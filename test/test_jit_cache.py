@@ -53,18 +53,18 @@ def test_a_kernel_recompiles_when_only_its_helper_module_changes(tmp_path: Path)
     root = tmp_path / "kernels_under_test"
     root.mkdir()
     (root / "__init__.py").write_text("")
-    helper = '''
+    helper = """
         from terrain_estimation.jit import compiled
 
 
         @compiled
         def inner(x):
             return x + {value}
-        '''
+        """
     _write(root / "helper.py", helper.format(value="1.0"))
     _write(
         root / "kernel.py",
-        '''
+        """
         from terrain_estimation.jit import compiled
         from kernels_under_test.helper import inner
 
@@ -72,9 +72,16 @@ def test_a_kernel_recompiles_when_only_its_helper_module_changes(tmp_path: Path)
         @compiled
         def outer(x):
             return inner(x) * 10.0
-        ''',
+        """,
     )
     assert _run(root) == 20.0
     assert any((root / "__pycache__").glob("kernel.outer-*.nbi")), "the kernel was not cached"
     _write(root / "helper.py", helper.format(value="2.0"))  # the kernel's own file is unchanged
     assert _run(root) == 30.0, "the kernel ran its helper's old machine code from the cache"
+
+
+def test_the_key_covers_the_simulator_and_analysis_kernels() -> None:
+    import terrain_estimation.jit as jit
+
+    names = {root.name for root in jit._project_roots()}
+    assert {"terrain_estimation", "terrain_analysis", "vehicle_sim"} <= names

@@ -44,7 +44,7 @@ _MARKER = b"jit import compiled"
 
 def _project_roots() -> tuple[Path, ...]:
     roots = [_HERE, _HERE.parent / "terrain_analysis"]
-    for candidate in (_HERE.parent / "vehicle_sim", _HERE.parent.parent.parent / "vehicle_sim" / "vehicle_sim"):
+    for candidate in (_HERE.parent / "vehicle_sim", _HERE.parent.parent / "vehicle_sim" / "vehicle_sim"):
         if candidate.is_dir():
             roots.append(candidate)
     return tuple(r for r in roots if r.is_dir())
