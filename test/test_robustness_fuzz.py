@@ -124,3 +124,29 @@ def test_fuzzed_stream_never_raises_and_never_yields_a_non_finite_estimate(vehic
             estimates += 1
             assert first_nonfinite(out) is None, (vehicle, first_nonfinite(out))
     assert estimates > 0  # the stream still produced estimates
+
+
+def test_a_load_cell_reading_beyond_the_sides_weight_is_rejected_alone() -> None:
+    """A rover load cell at 1e300 N passed the finite check and made the published W variance inf."""
+    entry = VEHICLES["rover"]
+    values = estimator_parameters(entry, None)
+    adapter = entry.make_adapter(values, entry.namespace)
+    guard = InputGuard(adapter.inputs, values)
+    stream = _stream("rover")
+    cells = [(i, key) for i, (key, _msg, _ns) in enumerate(stream) if key.startswith("load_")]
+    assert cells, "the rover stream has no load-cell message"
+    index, key = cells[0]
+    rejections = []
+    for i, (k, msg, log_ns) in enumerate(stream):
+        if i == index:
+            msg = copy.deepcopy(msg)
+            msg.wrench.force.z = 1e300
+        rejection = guard.check(k, msg, log_ns * 1e-9)
+        if rejection is not None:
+            rejections.append(rejection)
+            continue
+        for _out_key, out in adapter.handle(k, msg):
+            assert first_nonfinite(out) is None
+    assert len(rejections) == 1, rejections
+    text = str(rejections[0])
+    assert "wrench.force.z" in text and "1e+300" in text and "load" in text, text

@@ -47,6 +47,9 @@ class TopicSpec:
             magnitude ``gravity`` and, with a ``z`` among them, pointing up
             (REP 103) within ``input.gravity_max_tilt``.
         gravity: [m/s^2] the vehicle's gravity.
+        bounds: (field, largest magnitude, what sets it) for fields with a physical range (a load
+            cell's reading beyond what the vehicle's weight can put on it is a glitch, not a force):
+            a sample beyond it is rejected alone. Every field named here must also be in ``fields``.
         timeout: [s] diagnostics WARN when the topic is silent for longer (0: never).
         on_timeout: what the estimator does meanwhile (shown in the warning).
     """
@@ -61,6 +64,7 @@ class TopicSpec:
     covariances: tuple[str, ...] = ()
     gravity_fields: tuple[str, ...] = ()
     gravity: float = 9.80665
+    bounds: tuple[tuple[str, float, str], ...] = ()
     timeout: float = 0.0
     on_timeout: str = ""
 

@@ -182,6 +182,17 @@ class RoverAdapter:
         self.wheel_joints = tuple(str(values[f"joints.{w}_wheel"]) for w in WHEELS)
         self.two_axis = self.config.load_cell_axes == 2
         joints = (self.bogie_joint, *self.wheel_joints)
+        # A cell above a hub carries part of the side's weight; no real shock puts more on it than the whole
+        # side's mass at the largest acceleration an accelerometer may read (input.max_acceleration): beyond
+        # that a reading is a glitch (a 1e300 N sample would otherwise enter the window means and the filter).
+        side_mass = sum(_f(values, f"vehicle.{m}") for m in ("body_mass", "bogie_mass")) + 3.0 * _f(
+            values, "vehicle.wheel_mass"
+        )
+        max_force = side_mass * _f(values, "input.max_acceleration") * 9.80665
+        cell_fields = ("wrench.force.z", "wrench.force.x") if self.two_axis else ("wrench.force.z",)
+        cell_bounds = tuple(
+            (f, max_force, f"the side's mass {side_mass:.3g} kg at input.max_acceleration, N") for f in cell_fields
+        )
 
         def spec(key: str, topic: str, msg_type: type, **checks: Any) -> TopicSpec:
             return TopicSpec(
@@ -216,7 +227,8 @@ class RoverAdapter:
                     f"load_{w}",
                     f"wheel/{w}/load",
                     WrenchStamped,
-                    fields=("wrench.force.z", "wrench.force.x") if self.two_axis else ("wrench.force.z",),
+                    fields=cell_fields,
+                    bounds=cell_bounds,
                 )
                 for w in ("front", "middle", "rear")
             ),

@@ -16,6 +16,8 @@ What is checked, per input topic (:class:`~terrain_estimation.ros.framework.Topi
 * the numeric fields the adapter reads are finite (``velocity[wheel]`` names
   a JointState entry by joint name: a missing joint or a short array is
   rejected too);
+* fields with a physical range (``TopicSpec.bounds``, e.g. a load cell's
+  force): a sample beyond it is a glitch and is rejected alone;
 * covariance arrays (3x3, row major) are finite, symmetric and positive
   semi-definite, unless marked not measured (first element -1, the
   sensor_msgs convention);
@@ -510,13 +512,16 @@ class InputGuard:
         if plan is None or plan.spec is not spec:
             plan = self._plans[key] = _InputPlan(spec)
         values = []
-        for path, get in plan.fields:
+        for (path, get), bound in zip(plan.fields, plan.bounds, strict=True):
             try:
                 value = get(msg)
             except LookupError as exc:
                 return Rejection(topic, *exc.args)
             if not math.isfinite(float(value)):
                 return Rejection(topic, path, _fmt(float(value)), "is not finite")
+            if bound is not None and not -bound[0] <= value <= bound[0]:
+                self._last_stamp_ns[key] = stamp_ns  # the stream's order is still followed
+                return Rejection(topic, path, _fmt(float(value)), f"is beyond {bound[0]:.4g} ({bound[1]}): a glitch")
             values.append(value)
         for path, get in plan.covariances:
             cov = np.asarray(get(msg), dtype=float)
@@ -604,6 +609,11 @@ class _InputPlan:
     def __init__(self, spec: Any) -> None:
         self.spec = spec
         self.fields = tuple((p, _path_getter(p)) for p in (*spec.fields, *spec.gravity_fields))
+        limits = {path: (float(limit), why) for path, limit, why in spec.bounds}
+        unknown = sorted(set(limits) - set(spec.fields))
+        if unknown:
+            raise ValueError(f"TopicSpec {spec.key!r}: bounds on fields it does not check: {unknown}")
+        self.bounds: tuple[tuple[float, str] | None, ...] = tuple(limits.get(p) for p, _ in self.fields)
         self.covariances = tuple((p, _path_getter(p)) for p in spec.covariances)
         self.gravity_fields: tuple[str, ...] = tuple(spec.gravity_fields)
         names = [p.rsplit(".", 1)[-1] for p in self.gravity_fields]
