@@ -29,7 +29,7 @@ DP(W, i), τ_R(W, i) models of ``terrain_msgs/TerrainResponseModel`` (C.7).
 
 * Honest variances (issue 21, :mod:`~terrain_estimation.estimators.rover_noise`):
   process noise sized to the change per step, Estimator 1's wheel-rate Q and
-  slip R and Estimator 2/3's Q of W and DP (rotated with γ) matched to the innovations
+  slip R and Estimator 2/3's Q of W and DP (rotated with γ, per wheel) matched to the innovations
   (``noise_matching``), the coloured contact-angle error and eq. 49's
   neglected wheel coupling considered in the published variances
   (``contact_angle_bias``), τ_R published for the window just observed, and
@@ -201,6 +201,12 @@ _TAU_IDX: list[int] = list(range(3, 6))
 
 #: Memory (steps) of the averaged inertial-coupling variance of τ_R: 5 s at 5 Hz.
 _COUPLING_MEMORY = 25.0
+#: Estimator 1's kinematic and net-force walks (θ̇, q̇1, the four accelerations, the four net forces, ẋ^R) and
+#: their σ factor while settling: the walks of before issue 21, item 2, ten times the change per step.
+_SETTLE_IDX: list[int] = [_G.PITCH_RATE, _G.BOGIE_RATE, *_G.FREE_ACC, *_G.FREE_FORCE, _G.FORWARD_SPEED]
+_SETTLE_BOOST = 10.0
+#: Matched scales of Estimator 2/3's Q: W and DP of each wheel (rover_noise, "Noise blocks").
+_WHEEL_FORCE_BLOCKS = 6
 
 
 def _block_cov(L: Array, columns: list[int]) -> Array:
@@ -270,7 +276,8 @@ class RoverTerrainEstimator(SensorWindows):
         self._sinkage.reset()
         self._since_start = 0
         self._scales1 = np.ones(2)  # Q wheel rates, R slips
-        self._scales2 = np.ones(2)  # Q W, Q DP (rotated with γ, rover_noise.rotated_force_noise_factor)
+        # Q of W and of DP per wheel (rear, middle, front; rotated with γ, rover_noise.rotated_force_noise_factor)
+        self._scales2 = np.ones(_WHEEL_FORCE_BLOCKS)
         self._next_scales = (self._scales1, self._scales2)
         self._tau_step_var = np.zeros(3)  # Q of τ_R over the last step
         self._coupling_var = np.zeros(3)  # averaged considered coupling variance of τ_R (rover_noise)
@@ -421,7 +428,7 @@ class RoverTerrainEstimator(SensorWindows):
         self._c["divergences"] += 1
         self._since_start = 0
         self._scales1 = np.ones(2)
-        self._scales2 = np.ones(2)
+        self._scales2 = np.ones(_WHEEL_FORCE_BLOCKS)
         self._tau_step_var = np.zeros(3)
         if failure is None:
             self._failures = 0
@@ -470,7 +477,7 @@ class RoverTerrainEstimator(SensorWindows):
         self._failures = 0
         self._since_start = 0
         self._scales1 = np.ones(2)
-        self._scales2 = np.ones(2)
+        self._scales2 = np.ones(_WHEEL_FORCE_BLOCKS)
         self._tau_step_var = np.zeros(3)
         self._c["restarts" if restart else "initialisations"] += 1
         self._t_step = t
@@ -494,6 +501,10 @@ class RoverTerrainEstimator(SensorWindows):
         s1, s2 = self._scales1, self._scales2
         q1_sigma = self._q1_sigma.copy()
         q1_sigma[_RATE_IDX] *= math.sqrt(s1[0])
+        if self._since_start < cfg.settle_steps:
+            # Settling after a (re)start: the state is a guess whose error moves far more per step than the
+            # terrain's motion the kinematic walks are sized to (rover_noise, "Settling").
+            q1_sigma[_SETTLE_IDX] *= _SETTLE_BOOST
         L1 = self.general_model.process_noise_factor(q1_sigma, dt)
         self._next_tau_step_var = np.square(q1_sigma[_TAU_IDX]) * (dt / cfg.step_s)
         prior1 = self.filter.predict(self._general, self.general_model, u, dt, process_noise_sqrt=L1)
@@ -577,7 +588,7 @@ class RoverTerrainEstimator(SensorWindows):
                 synthesised_cov=perp_cov,
             )
         L2 = rotated_force_noise_factor(
-            self._q2_sigma * scale * np.repeat(np.sqrt(np.concatenate([[1.0], s2])), 3),
+            self._q2_sigma * scale * np.sqrt(np.concatenate([np.ones(3), s2])),
             np.asarray(self._wheel_force.x, dtype=float),
         )
         prior2 = self.filter.predict(self._wheel_force, self.wheel_force_model, None, dt, process_noise_sqrt=L2)
@@ -586,8 +597,9 @@ class RoverTerrainEstimator(SensorWindows):
         if cfg.noise_matching.enabled and np.isfinite(info2.nis):
             mm2 = self._moments.measurement_moments(prior2, self.wheel_force_model, eps, measurement_noise_sqrt=R2)
             blocks2 = [
-                NoiseBlock(name, process_block_part(mm2.P_xz, prior2.P, _block_cov(L2, list(range(3 * g, 3 * g + 3)))))
-                for g, name in ((1, "Q W"), (2, "Q DP"))
+                NoiseBlock(f"Q {name} {wheel}", process_block_part(mm2.P_xz, prior2.P, _block_cov(L2, [3 * g + j])))
+                for g, name in ((1, "W"), (2, "DP"))
+                for j, wheel in enumerate(WHEELS)
             ]
             matched = match_noise_scales(s2, blocks2, info2.innovation, info2.innovation_cov, cfg.noise_matching)
             # Two-sided: with γ's increment rotating W and DP (rotated_force_noise_factor) the cells no longer

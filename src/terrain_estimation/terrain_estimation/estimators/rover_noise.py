@@ -58,16 +58,32 @@ Which blocks, and why (measured on terrain 1, E1+E2):
   and DP's errors unchanged or smaller (terrain 1, 100 s: γ 0.0123 → 0.0115
   rad, DP 0.64 → 0.60 N RMS). γ's Q stays fixed: its measurement error is
   coloured (below), which innovations cannot see; γ̌'s channels stay cautious
-  (ν²/S 0.05–0.3).
+  (ν²/S 0.05–0.3). **One scale per wheel** (six blocks: W and DP of the rear,
+  middle and front wheel): the wheels' loads do not move alike — on terrain
+  1 the window-mean W of the rear, middle and front wheel changes by 0.054,
+  0.047 and 0.030 N per step (RMS) and DP by 0.050, 0.034 and 0.029 N — so a
+  scale shared by the three wheels left the front wheel's cells cautious
+  (ν²/S of F_L 0.34, of F_⊥ 0.58) and the rear's F_L over-confident (1.3).
+  Per wheel the cells are at 0.76–1.13 on terrain 1 (seeds 1, 2, 51) and
+  0.77–0.98 on terrains 2–6; the front wheel's scales settle at ≈ 0.06 (W)
+  and 0.18 (DP) of the base, the rear's at 0.15 and 0.25.
 
-**Estimator 1's NIS** stays ≈ 3.6 of 11 on terrain 1 (issue 21, item 2, not
-met): per channel ν²/S is 0.3/0.03/0.03 on the wheel rates, whose S is τ_R's
+**Estimator 1's channels.** With the kinematic and net-force random walks
+sized to the truth's change per step
+(:class:`~terrain_estimation.models.rover_estimators.GeneralProcessNoise`,
+issue 21, item 2) the slips' one R scale settles at ≈ 0.75 (0.15–0.2
+before) and the three slips are at ν²/S 0.92–1.06 on terrain 1 (rear and
+middle 0.5, front 1.4–1.5 before), the velocimeter at 0.8–0.92 (0.53–0.65;
+1.09–1.35 on terrains 2, 3 and 6), the pitch 0.28–0.43 and the
+accelerometers 0.56–0.87 (0.1 and 0.05–0.12). Estimator 1's NIS over its
+11 channels stays below its dof (issue 21, item 2, not met): per channel
+ν²/S is 0.3/0.03/0.03 on the wheel rates, whose S is τ_R's
 random walk (0.01 N·m per step → 1.9e-3 rad/s over 0.2 s) propagated through
 eq. 49 (the matching cannot see it: the increment reaches the encoders a step
 later); 3e-3 N·m, the change per step at terrain 1's load and slip changes,
 brings the middle and front to ≈ 0.3 but the rear to 2.9 and its τ_R error
-from 3e-4 to 0.036 N·m. The attitude and accelerometer channels are at
-0.01–0.1 and did not move when their Q groups were matched too.
+from 3e-4 to 0.036 N·m. The bogie angle stays at ≈ 0.1: its S is the prior
+carried from τ_R's increments through the quasi-static net forces.
 
 The R scale forgets more slowly (``r_forgetting`` 0.95, 4 s) than the Q
 scales (0.8, 1 s): a sensor does not step.
@@ -114,7 +130,13 @@ whose slow error (≈ 6e-4 N·m RMS, twice the others') nothing here states.
 (re)initialisation come from one window's measurements and an equilibrium
 guess; ``settled`` is False until both filters have run ``settle_steps``
 updates (default 10 = 2 s, longer than the ≈ 1 s the matched scales and the
-slip channels need to forget their start).
+slip channels need to forget their start). While not settled, Estimator 1's
+kinematic and net-force walks (θ̇, q̇1, the accelerations, the net forces,
+ẋ^R) run at 10× their σ, the walks of before issue 21, item 2: they are
+sized to the terrain's change per step, while the error of a start's guess
+(or of a last good estimate seconds old, after a divergence) moves far
+more; without it a rover whose accelerometers had failed for 2 s restarted
+from its last good estimate, diverged again and did not re-converge in 20 s.
 """
 
 # ruff: noqa: N803, N806 - matrix symbols (P, S, Q, R, G, X) of the literature

@@ -105,7 +105,17 @@ class GeneralProcessNoise:
     """Estimator 1 process noise: random-walk σ per step of ``step_s`` (0.2 s), per state group.
 
     Sized to the change over one step of a rover at 2 cm/s (4 mm of travel,
-    MODELS.md C.5):
+    MODELS.md C.5). Measured on the truth plant (window means, RMS change per
+    0.2 s step on terrain 1 / the sharp step, terrain 6): θ̈ 1.1e-5 / 4.7e-5
+    rad/s² (largest 4.5e-4), q̈1 2.3e-5 / 7.4e-5 (largest 6.8e-4), ẍ0, z̈0
+    ≤ 2.2e-5 m/s² (largest 1e-4), θ̇ 5.6e-5 / 1.0e-4 rad/s, ẋ^R 2.2e-5 /
+    8.2e-5 m/s — the whole change, most of which eqs. 53–60 already carry.
+    Until issue 21, item 2 the kinematic and net-force walks were 10–50×
+    these (1e-3 rad/s², 0.005 N·m, 0.02 N): the prior of θ, q1 and of θ̇, q̇1
+    (which eq. 66 carries into the slips of the bogie wheels) was far wider
+    than its error, the pitch, bogie-angle and accelerometer innovations were
+    0.01–0.1 of their predicted variance and the rear and middle slips 0.5
+    against the front's 1.4 (one R scale for the three).
 
     Attributes:
         wheel_rate: eq. 49 with the step's mean torque; covers the mismatch
@@ -115,21 +125,33 @@ class GeneralProcessNoise:
             ≈ 0.3 N of load change per step, plus slip changes; 0.01 N·m.
         pitch, bogie_angle: eqs. 51–52 are exact to the third derivative;
             1e-5 rad.
-        pitch_rate, bogie_rate: eqs. 53–54; 1e-4 rad/s.
+        pitch_rate, bogie_rate: on top of eqs. 53–54, whose error is the
+            change of the acceleration over the step times dt/2 (≤ 5e-6 rad/s
+            at the RMS step change of terrain 6); 2e-5 rad/s.
         pitch_acceleration, bogie_acceleration: on top of eqs. 55–56 (Ḣ ġ and
-            ∂T/∂g dropped); 1e-3 rad/s².
-        x_acceleration, z_acceleration: on top of eqs. 57–58; 1e-3 m/s².
+            ∂T/∂g dropped); at most the whole change per step, 1.1e-5–7.4e-5
+            rad/s² RMS on terrains 1 and 6: 1e-4 rad/s².
+        x_acceleration, z_acceleration: on top of eqs. 57–58: the RMS change
+            per step on terrain 6, the largest of the six (2.2e-5 and 1.0e-5
+            m/s²; 1e-4 at most): 2e-5 m/s². This walk, not the speed's own,
+            sets the prior of ẋ^R through eq. 60: at 1e-4 the velocimeter's
+            innovations were 0.75 of their S on terrain 1 (0.82 at 2e-5, and
+            1.35 on terrain 6).
         body_moment: M_0fw random walk (eq. 59) beyond the quasi-static
-            model (module docstring): the change of H g̈ and of the dropped
-            Ḣ ġ over a step, ≪ 1e-3 N·m, and the error of the gravity moment
-            at the estimated configuration; 0.005 N·m. With the paper's pure
-            random walk (``quasi_static=False``) use ≈ 0.05 N·m: the wheel
-            loads shift by ≈ 0.3 N per step at 0.35 m lever arms.
-        bogie_moment: M_1fw likewise; 0.003 N·m (≈ 0.03 N·m without the
-            quasi-static model).
+            model (module docstring): the change of H g̈ over a step (≈ 1
+            kg·m² × the ≤ 4.5e-4 rad/s² of θ̈'s largest change per step) and
+            the gravity moment's error at the estimated configuration (12.5
+            kg × g × ≈ 0.1 m × the ≈ 1e-5–1e-4 rad by which the pitch error
+            changes over a step); 5e-4 N·m. With the paper's pure random walk
+            (``quasi_static=False``) use ≈ 0.05 N·m: the wheel loads shift by
+            ≈ 0.3 N per step at 0.35 m lever arms.
+        bogie_moment: M_1fw likewise (the bogie's ≈ 0.07 kg·m² and 2.2 kg at
+            0.175 m); 3e-4 N·m (≈ 0.03 N·m without the quasi-static model).
         wheel_force_x, wheel_force_z: F_xfw, F_zfw random walks: the change
-            of the total mass times the body acceleration; 0.02 N.
-        forward_speed: on top of eq. 60; 1e-4 m/s.
+            of the total mass (≈ 15 kg) times the body acceleration per step
+            (RMS 2.2e-5 m/s² on terrain 6: 3.3e-4 N); 5e-4 N.
+        forward_speed: on top of eq. 60, which integrates ẍ0, z̈0: at most
+            the whole change per step on terrain 1 (2.2e-5 m/s RMS); 2e-5 m/s.
         slip: eq. 61; 0.005 per step. The window-mean slip of the simulated
             rover changes by ≈ 1.1e-3 per step on terrain 1 (RMS), with slow
             swings of several hundredths that a smaller σ lags; 0.02 (the
@@ -142,17 +164,17 @@ class GeneralProcessNoise:
     resistive_torque: float = 0.01
     pitch: float = 1.0e-5
     bogie_angle: float = 1.0e-5
-    pitch_rate: float = 1.0e-4
-    bogie_rate: float = 1.0e-4
-    pitch_acceleration: float = 1.0e-3
-    bogie_acceleration: float = 1.0e-3
-    x_acceleration: float = 1.0e-3
-    z_acceleration: float = 1.0e-3
-    body_moment: float = 0.005
-    bogie_moment: float = 0.003
-    wheel_force_x: float = 0.02
-    wheel_force_z: float = 0.02
-    forward_speed: float = 1.0e-4
+    pitch_rate: float = 2.0e-5
+    bogie_rate: float = 2.0e-5
+    pitch_acceleration: float = 1.0e-4
+    bogie_acceleration: float = 1.0e-4
+    x_acceleration: float = 2.0e-5
+    z_acceleration: float = 2.0e-5
+    body_moment: float = 5.0e-4
+    bogie_moment: float = 3.0e-4
+    wheel_force_x: float = 5.0e-4
+    wheel_force_z: float = 5.0e-4
+    forward_speed: float = 2.0e-5
     slip: float = 0.005
 
     def __post_init__(self) -> None:
