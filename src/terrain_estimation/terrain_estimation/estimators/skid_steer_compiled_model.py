@@ -410,7 +410,7 @@ class ModelConstants:
 
 def model_constants(model: Any) -> ModelConstants | None:
     """The :class:`ModelConstants` of a ``SkidSteerObserverModel`` or ``SkidSteerTireScaleModel``, None for
-    any other model (the kinematic ones: the Python step runs them)."""
+    any other model (the kinematic ones, a ground-slope state pair: the Python step runs them)."""
     from terrain_estimation.models.skid_steer_observer import SkidSteerObserverModel
     from terrain_estimation.models.skid_steer_scales import SCALE_NAMES, SkidSteerTireScaleModel
 
@@ -419,7 +419,7 @@ def model_constants(model: Any) -> ModelConstants | None:
         mi = [1, 0, 0, base.substeps, base.max_substeps, 0, 0, 0]
         mf = [0.0] * 9
         n = 3
-    elif type(model) is SkidSteerTireScaleModel:
+    elif type(model) is SkidSteerTireScaleModel and not model.scales.slope:  # the slope: the Python step
         base = model.base
         sc = model.scales
         k = sc.scale_count

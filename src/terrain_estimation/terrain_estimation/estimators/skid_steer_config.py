@@ -102,6 +102,11 @@ class SkidSteerEstimatorConfig:
             (the brush model with the cornering-stiffness scale as a state: the
             best of the four on the independent truth plant, docs/results/skid_steer.md).
         tire_scales: scale states of the ``*_scales`` models (ignored by the others).
+            Its ``states`` may also hold ``"gravity_x", "gravity_y"``: the
+            ground-slope option (off by default), gravity's body-frame
+            components as states entering f
+            (:mod:`~terrain_estimation.models.skid_steer_scales`); the
+            Python step runs it (no compiled step).
         process_accel_std: σ_proc of the kinematic models (m/s²): accelerometer
             noise, vibration and gravity leakage integrated by the process.
         tire_model_std: σ_tire of the kinematic models (m/s²): the brush

@@ -63,6 +63,7 @@ import numpy as np
 from terrain_estimation.checks import check_non_negative
 from terrain_estimation.filters.base import Array
 from terrain_estimation.models.skid_steer_scales import (
+    GRAVITY_NAMES,
     RESISTANCE_NAME,
     STATE_NAMES,
     TireScaleConfig,
@@ -72,8 +73,9 @@ from terrain_estimation.models.skid_steer_scales import (
 
 __all__ = ["CONSIDER_NAMES", "ConsiderConfig", "ConsiderCovariance"]
 
-#: Parameters that can be considered: the tire scales and the motion-resistance coefficient.
-CONSIDER_NAMES: tuple[str, ...] = STATE_NAMES
+#: Parameters that can be considered: the tire scales and the motion-resistance coefficient (not the ground
+#: slope, a state of the filter or nothing).
+CONSIDER_NAMES: tuple[str, ...] = tuple(name for name in STATE_NAMES if name not in GRAVITY_NAMES)
 
 
 @dataclass(frozen=True)
@@ -109,8 +111,10 @@ class ConsiderConfig:
     step: float = 1e-5
 
     def __post_init__(self) -> None:
-        # CONSIDER_NAMES is STATE_NAMES: the names and their order.
+        # CONSIDER_NAMES is STATE_NAMES without the slope: the names and their order.
         object.__setattr__(self, "parameters", state_names("consider.parameters", self.parameters))
+        if set(self.parameters) & set(GRAVITY_NAMES):
+            raise ValueError(f"consider.parameters cannot hold the ground slope {GRAVITY_NAMES}, got {self.parameters}")
         for name in ("scale_std", "resistance_rms"):
             check_non_negative("consider", name, getattr(self, name))
         if not (math.isfinite(self.step) and 0.0 < self.step <= 1e-2):

@@ -197,6 +197,11 @@ class SkidSteerKinematicModel(_ScaledModelBase):
         vx, vy = rows[0].copy(), rows[1].copy()
         rows[0] = cos * vx + sin * vy + dt * u.ax
         rows[1] = cos * vy - sin * vx + dt * u.ay
+        gravity = self._gravity(rows)
+        if gravity is not None:  # the ground slope (scales module): v̇ += g, g turned by −r Δt
+            rows[:2] += dt * gravity
+            self._turn_gravity(gravity, rows[2], dt)
+            rows[self._grav : self._grav + 2] = gravity
         self._clip_scales(rows, dt)
         return np.ascontiguousarray(rows.T).reshape(xs.shape)
 
