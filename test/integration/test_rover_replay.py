@@ -349,7 +349,8 @@ def test_innovation_test_is_consistent_on_a_nominal_run_and_flags_a_load_cell_of
             elif jumped and warned_at is None:
                 warned_at = t
     assert adapter.health.nis_dof == 10
-    # Settled estimates only (the first 2 s describe the start); 2-40 s of terrain 1: 8.4 of 10 when written, 9.0 once the process noise was sized per step.
+    # Settled estimates only (the first 2 s describe the start); 2-40 s of terrain 1: 8.4 of 10 when written,
+    # 9.0 once the process noise was sized per step.
     assert len(nominal) >= 180
     assert 0.8 * 10 <= float(np.mean(nominal)) <= 1.2 * 10, np.mean(nominal)
     assert warned_at is not None and warned_at - fault_at <= 2.0, warned_at
