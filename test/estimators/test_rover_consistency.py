@@ -13,6 +13,7 @@ from terrain_estimation.estimators.rover_noise import (
     ContactAngleBias,
     NoiseBlock,
     NoiseMatchingConfig,
+    RepeatPassError,
     considered_variances,
     coupling_variance,
     match_noise_scales,
@@ -145,6 +146,54 @@ def test_considered_contact_angle_error() -> None:
     np.testing.assert_allclose(d, 1e-2 + 2500.0 * 1e-4)
     off = considered_variances(gamma_var, load, load_var, pull, pull_var, ContactAngleBias(enabled=False))
     assert all(np.array_equal(a, b) for a, b in zip(off, (gamma_var, load_var, pull_var), strict=True))
+
+
+def test_considered_error_raised_to_the_repeat_pass_measure() -> None:
+    """σ_b² is the larger of the prior and the measured variance, per wheel; ignored when from_repeat_pass is off."""
+    gamma_var, load, load_var, pull, pull_var = (np.full(3, v) for v in (1e-6, 50.0, 1e-3, 2.0, 1e-2))
+    measured = np.array([4e-4, 1e-5, 4e-4])
+    g, _, d = considered_variances(gamma_var, load, load_var, pull, pull_var, ContactAngleBias(sigma=0.01), measured)
+    np.testing.assert_allclose(g, 1e-6 + np.array([4e-4, 1e-4, 4e-4]))
+    np.testing.assert_allclose(d, 1e-2 + 2500.0 * np.array([4e-4, 1e-4, 4e-4]))
+    fixed = ContactAngleBias(sigma=0.01, from_repeat_pass=False)
+    g, _, _ = considered_variances(gamma_var, load, load_var, pull, pull_var, fixed, measured)
+    np.testing.assert_allclose(g, 1e-6 + 1e-4)
+    with pytest.raises(ValueError, match="memory_steps"):
+        ContactAngleBias(memory_steps=0.5)
+
+
+def test_repeat_pass_error_measures_the_contact_angle_error() -> None:
+    """Wheels in one track: half the squared difference of their estimates at one place is the error variance.
+
+    The true angle is a function of the place, γ(s); each estimate errs by an independent σ_e = 0.03 rad
+    and states a filter variance P; the measure is σ_e² − P (what the filter variance leaves out), averaged.
+    Exact estimates give ≈ 0; a standing rover adds nothing; nothing before the trailing wheel reaches the
+    first place the leading one met.
+    """
+    rng = np.random.default_rng(3)
+    spacing = np.array([0.35, 0.35])
+    x_wheel = np.array([-0.35, 0.0, 0.35])
+
+    def truth(s: float) -> np.ndarray:
+        return np.asarray(0.1 * np.sin(3.0 * (s + x_wheel)))
+
+    def run(sigma: float, p: float) -> tuple[list[float], RepeatPassError]:
+        rp = RepeatPassError(memory=5.0)
+        out = []
+        for k in range(4000):
+            s = 0.003 * k
+            out.append(rp.update(s, truth(s) + sigma * rng.standard_normal(3), np.full(3, p), spacing))
+        return out, rp
+
+    exact, _ = run(0.0, 0.0)
+    assert max(exact) < 1e-6  # the nearest estimate is up to 1.5 mm from the place: ≪ the prior 1e-4
+    noisy, rp = run(0.03, 1e-4)
+    assert noisy[100] == 0.0  # 0.3 m travelled: the middle wheel has not reached the front wheel's first place
+    assert np.mean(noisy[1000:]) == pytest.approx(0.03**2 - 1e-4, rel=0.1)
+    before = rp.variance
+    assert rp.update(0.003 * 3999, np.zeros(3), np.zeros(3), spacing) == before  # no travel: unchanged
+    rp.reset()
+    assert rp.variance == 0.0
 
 
 def test_smoothed_random_walk_variance_removes_the_unobserved_increment() -> None:

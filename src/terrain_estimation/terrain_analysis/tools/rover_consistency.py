@@ -181,14 +181,16 @@ def section_consistency(rr: Any, res: Any, variants: Sequence[str], defaults: Se
         "",
         *(misses or ["- Nowhere: every quantity meets both criteria pooled over the terrains."]),
         "",
-        "Known causes. (1) γ, W and DP carry the geometric contact angle's slow error, considered at one σ_b = "
-        "`filter.contact_angle_bias` (0.01 rad, sized a priori for the path beyond the parabola and ≈ 5 mm of "
-        "differential sinkage over 0.35 m, not fitted to these runs). The plant sinks each wheel by its own "
+        "Known causes. (1) γ, W and DP carry the geometric contact angle's slow error, considered at σ_b: the "
+        "larger of `filter.contact_angle_bias` (0.01 rad, sized a priori for the path beyond the parabola and ≈ 5 mm "
+        "of differential sinkage over 0.35 m, not fitted to these runs) and the repeat-pass measure (a wheel reaches "
+        "the place its leader passed 0.35 m earlier: half the mean square difference of their γ estimates, less "
+        "their variances; estimators/rover_noise.py, a lower bound). The plant sinks each wheel by its own "
         "Wong–Reece sinkage (≈ 4–5 mm spread across the wheels on terrains 1, 2, 4–6, ≈ 2 mm on 3; section "
         '"sinkage", `python -m terrain_analysis.tools.rover_sinkage`): where γ̌ is better than σ_b (the straight '
         "slopes of terrains 2–3, the wide step 4) they are cautious, where it is worse (the steps of terrains 5–6, "
         "whose curvature reaches and passes 1/l_w, the limit [RB] sets for the method and beyond which it excludes "
-        "terrain 6) over-confident; a σ_b that follows the path's curvature change is open work. (2) τ_R is "
+        "terrain 6) over-confident, less so with the repeat-pass measure. (2) τ_R is "
         "published for the window just observed (`P_k|k − Q_k`) plus eq. 49's neglected wheel coupling "
         "I_wg (θ̈ + q̈1), now estimated without counting Estimator 1's acceleration noise (I_wg² (â² − P_â) "
         "averaged, floored at 0; it was I_wg² â², 5× too cautious): the middle and front wheels are consistent, "

@@ -135,6 +135,7 @@ from terrain_estimation.estimators.rover_config import RoverEstimatorConfig
 from terrain_estimation.estimators.rover_diagnostics import consistency_channels, subset_nis
 from terrain_estimation.estimators.rover_noise import (
     NoiseBlock,
+    RepeatPassError,
     considered_variances,
     coupling_variance,
     is_settled,
@@ -158,7 +159,7 @@ from terrain_estimation.estimators.rover_response import (
 from terrain_estimation.estimators.rover_windows import SensorWindows, WindowMeans
 from terrain_estimation.filters.base import Array, GaussianState, UpdateInfo
 from terrain_estimation.filters.faults import DivergenceCheck, DivergenceMonitor
-from terrain_estimation.models.rover import WHEELS, carrier_angles
+from terrain_estimation.models.rover import WHEELS, carrier_angles, wheel_centres
 from terrain_estimation.models.rover_estimators import (
     GeneralEstimatorModel,
     GeneralIndex,
@@ -281,6 +282,7 @@ class RoverTerrainEstimator(SensorWindows):
         self._next_scales = (self._scales1, self._scales2)
         self._tau_step_var = np.zeros(3)  # Q of τ_R over the last step
         self._coupling_var = np.zeros(3)  # averaged considered coupling variance of τ_R (rover_noise)
+        self._repeat_pass = RepeatPassError(self.config.contact_angle_bias.memory_steps)
         self._next_tau_step_var = np.zeros(3)
         self._last: RoverEstimate | None = None
         self._outbox: list[RoverEstimate] = []
@@ -474,6 +476,7 @@ class RoverTerrainEstimator(SensorWindows):
             self._monitors[1].start(self._wheel_force)
         self._vertical = (0.0, 0.0)
         self._sinkage.reset()
+        self._repeat_pass.reset()
         self._failures = 0
         self._since_start = 0
         self._scales1 = np.ones(2)
@@ -655,8 +658,12 @@ class RoverTerrainEstimator(SensorWindows):
         v1 = np.clip(np.diag(np.asarray(self._general.P, dtype=float)), 0.0, None)
         x2 = np.asarray(self._wheel_force.x, dtype=float)
         v2 = np.clip(np.diag(np.asarray(self._wheel_force.P, dtype=float)), 0.0, None)
+        bias = self.config.contact_angle_bias
+        if not initialised:
+            centres = wheel_centres(self.config.rover, configuration(float(x1[_G.PITCH]), float(x1[_G.BOGIE])))
+            self._repeat_pass.update(self._distance, x2[0:3], v2[0:3], np.diff(centres[:, 0]))
         gamma_var, load_var, pull_var = considered_variances(
-            v2[0:3], x2[3:6], v2[3:6], x2[6:9], v2[6:9], self.config.contact_angle_bias
+            v2[0:3], x2[3:6], v2[3:6], x2[6:9], v2[6:9], bias, self._repeat_pass.variance
         )
         # Eq. 49 leaves out the wheels' inertial coupling to the carrier, I_wg (θ̈ + q̈1) on the bogie wheels
         # and I_wg θ̈ on the front: an error of τ_R that no innovation shows (considered, rover_noise).

@@ -104,8 +104,10 @@ class RoverEstimatorConfig:
         noise_matching: innovation matching of the noise blocks (Estimator 1:
             Q of the slips, Q of τ_R, R of the slip channels; Estimator 2/3:
             Q of γ, W, DP), :mod:`~terrain_estimation.estimators.rover_noise`.
-        contact_angle_bias: γ̌'s coloured error as three Gauss–Markov states
-            of Estimator 2/3 (:class:`~terrain_estimation.estimators.rover_noise.ContactAngleBias`).
+        contact_angle_bias: γ̌'s coloured error, considered in the published
+            variances of γ, W and DP: a prior σ_b raised to the error the
+            wheels' repeat passes show
+            (:class:`~terrain_estimation.estimators.rover_noise.ContactAngleBias`).
         settle_steps: updates after a (re)initialisation before an estimate
             is flagged ``settled``.
         sinkage: the estimator's own model of each wheel's sinkage (Bekker's
