@@ -91,6 +91,7 @@ from terrain_estimation.ros.rover_params import VEHICLE_SPECS_ROVER as VEHICLE_S
 from terrain_estimation.ros.rover_params import specs_for as specs_for
 from terrain_estimation.ros.rover_params import vehicle_params as vehicle_params
 from terrain_estimation.ros.time import sec_to_stamp, stamp_to_ns
+from terrain_estimation.ros.validation import STANDARD_GRAVITY
 from terrain_msgs.msg import TerrainResponseModel, WheelTerrain, WheelTerrainArray
 
 __all__ = ["WHEEL_ORDER", "RoverAdapter", "estimate_to_msg", "fit_to_msg", "make_adapter"]
@@ -185,10 +186,8 @@ class RoverAdapter:
         # A cell above a hub carries part of the side's weight; no real shock puts more on it than the whole
         # side's mass at the largest acceleration an accelerometer may read (input.max_acceleration): beyond
         # that a reading is a glitch (a 1e300 N sample would otherwise enter the window means and the filter).
-        side_mass = sum(_f(values, f"vehicle.{m}") for m in ("body_mass", "bogie_mass")) + 3.0 * _f(
-            values, "vehicle.wheel_mass"
-        )
-        max_force = side_mass * _f(values, "input.max_acceleration") * 9.80665
+        side_mass = self.config.rover.total_mass
+        max_force = side_mass * _f(values, "input.max_acceleration") * STANDARD_GRAVITY
         cell_fields = ("wrench.force.z", "wrench.force.x") if self.two_axis else ("wrench.force.z",)
         cell_bounds = tuple(
             (f, max_force, f"the side's mass {side_mass:.3g} kg at input.max_acceleration, N") for f in cell_fields
