@@ -252,9 +252,8 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
         "tire_scales.ground_slope",
         _TS.slope,
         "filter.model brush_scales / kinematic_scales: estimate the ground slope as gravity's body-frame x, y "
-        "components (states gravity_x, gravity_y) in the process model; off by default: on a 5 deg bank it lowers "
-        "|e_beta| by ~11 %, on level ground it raises it by ~28 % (models/skid_steer_scales.py); runs the Python "
-        "filter step (~1.2 ms per step)",
+        "components (states gravity_x, gravity_y) in the process model; off by default: it helps on a bank and "
+        "costs on level ground (figures: docs/results/skid_steer_fair.md); runs the Python filter step",
     ),
     ParamSpec(
         "tire_scales.slope_std",
