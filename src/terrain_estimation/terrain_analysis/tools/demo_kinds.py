@@ -369,7 +369,8 @@ _ROVER_NOTE = (
     "models: terrain_model messages received, stamp of the first; last model: its DP(W, i) against the true DP "
     "at every ground-truth (i, W) inside its validity region, in brackets the error the model states "
     "(dp_prediction_rms) and the share of the truth inside; "
-    "NIS: both filters summed, 20 dof, the estimator's diagnostics window)"
+    "NIS: the channels the estimator's consistency test counts — slips, load cells and the side's force "
+    "balance, 11 dof with two-axis cells — over its diagnostics window)"
 )
 
 

@@ -34,6 +34,10 @@ DP(W, i), τ_R(W, i) models of ``terrain_msgs/TerrainResponseModel`` (C.7).
   neglected wheel coupling considered in the published variances
   (``contact_angle_bias``), τ_R published for the window just observed, and
   ``settled`` False for the first ``settle_steps`` updates after a start.
+  Each estimate carries ``consistency_nis`` for ``/diagnostics``: the slips,
+  the load cells and, with two-axis cells, the side's force balance through
+  the three cells, the one test a cell offset cannot hide from by moving W and
+  DP (:mod:`~terrain_estimation.estimators.rover_diagnostics`).
 
 * ``sinkage`` (issue 21, :mod:`~terrain_estimation.models.rover_sinkage`):
   the wheels sink into the soil by different depths under different loads,
@@ -132,7 +136,12 @@ import math
 import numpy as np
 
 from terrain_estimation.estimators.rover_config import RoverEstimatorConfig
-from terrain_estimation.estimators.rover_diagnostics import consistency_channels, subset_nis
+from terrain_estimation.estimators.rover_diagnostics import (
+    ForceBalance,
+    consistency_channels,
+    consistency_dof,
+    subset_nis,
+)
 from terrain_estimation.estimators.rover_noise import (
     NoiseBlock,
     RepeatPassError,
@@ -262,6 +271,7 @@ class RoverTerrainEstimator(SensorWindows):
         self._p1 = np.diag(np.square(np.array(cfg.general_p0_sigma, dtype=float)))
         self._p2 = np.diag(np.square(np.array(cfg.wheel_force_p0_sigma, dtype=float)))
         self._sinkage = SinkageTracker(cfg.sinkage, cfg.rover.wheel_radius, cfg.rover.wheel_width)
+        self._balance = ForceBalance(cfg.rover.total_mass, cfg.rover.gravity)
         self.reset()
 
     # -- public API -----------------------------------------------------------------
@@ -275,6 +285,8 @@ class RoverTerrainEstimator(SensorWindows):
         self._failures = 0
         self._vertical = (0.0, 0.0)
         self._sinkage.reset()
+        self._balance.reset()
+        self._balance_step: tuple[float, Array | None, Array] = (0.0, None, np.zeros((2, 2)))
         self._since_start = 0
         self._scales1 = np.ones(2)  # Q wheel rates, R slips
         # Q of W and of DP per wheel (rear, middle, front; rotated with γ, rover_noise.rotated_force_noise_factor)
@@ -378,6 +390,10 @@ class RoverTerrainEstimator(SensorWindows):
         consistency = subset_nis(info1.innovation, info1.innovation_cov, general_channels) + subset_nis(
             info2.innovation, info2.innovation_cov, cell_channels
         )
+        if self.config.load_cell_axes == 2:
+            balance_nis, bias, bias_cov = self._balance_step
+            self._balance.commit(bias, bias_cov)
+            consistency += balance_nis
         self._emit(
             t,
             initialised=False,
@@ -476,6 +492,7 @@ class RoverTerrainEstimator(SensorWindows):
             self._monitors[1].start(self._wheel_force)
         self._vertical = (0.0, 0.0)
         self._sinkage.reset()
+        self._balance.reset()
         self._repeat_pass.reset()
         self._failures = 0
         self._since_start = 0
@@ -561,6 +578,14 @@ class RoverTerrainEstimator(SensorWindows):
             return post1, info1, None, None, (0.0, 0.0)
         x1 = np.asarray(post1.x, dtype=float)
         P1 = np.asarray(post1.P, dtype=float)
+        if cfg.load_cell_axes == 2:
+            # The side's force balance through the cells (rover_diagnostics.ForceBalance): a cell fault's test.
+            bal_idx = [_G.PITCH, _G.BOGIE, _G.X_ACC, _G.Z_ACC]
+            cell_var = (cfg.sensor_noise.load_cell**2 + cfg.floors.load_cell**2) / m.cell_n
+            r, R = self._balance.residual(
+                m.axial_force, m.perpendicular_force, cell_var, x1[bal_idx], P1[np.ix_(bal_idx, bal_idx)]
+            )
+            self._balance_step = self._balance.step(r, R)
         # Estimator 2/3 (eqs. 75–89) on Estimator 1's posterior.
         eps = carrier_angles(p, configuration(float(x1[_G.PITCH]), float(x1[_G.BOGIE])))
         kin_idx = [_G.PITCH, _G.BOGIE, _G.FORWARD_SPEED, _G.PITCH_RATE, _G.BOGIE_RATE]
@@ -711,7 +736,7 @@ class RoverTerrainEstimator(SensorWindows):
             accepted=accepted,
             settled=not initialised and is_settled(self._since_start, self.config.settle_steps),
             consistency_nis=float(consistency),
-            consistency_dof=sum(len(c) for c in consistency_channels(self.config.load_cell_axes)),
+            consistency_dof=consistency_dof(self.config.load_cell_axes),
         )
         self._last = est
         self._outbox.append(est)

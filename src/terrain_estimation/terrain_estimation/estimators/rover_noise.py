@@ -348,7 +348,12 @@ class RepeatPassError:
     wheels stand, which is different then), ``E Δ² = 2 σ_e²``. Their filter
     variances P_γ (already published) are subtracted:
     ``σ_b² ≈ ½ (Δ² − P_trail − P_lead)``, averaged over both pairs (front →
-    middle, middle → rear) and ``memory`` steps, floored at 0. No constant is
+    middle, middle → rear) and ``memory`` steps; the average is kept
+    unfloored (each sample may be negative where the filter variances
+    exceed the squared difference) and only the variance it gives out,
+    :attr:`variance`, is floored at 0 — flooring the average at every update
+    would cut its negative excursions and bias it upwards, as for the
+    coupling variance of τ_R. No constant is
     tuned: the law is the repeat-pass identity; what it measures is whatever
     makes γ̌ err at this place — the path beyond the parabola at a step's edge
     (the centre turns round the edge within a wheel radius, a change of slope
@@ -365,7 +370,12 @@ class RepeatPassError:
         self._s: list[float] = []
         self._gamma: list[Array] = []
         self._var: list[Array] = []
-        self.variance = 0.0
+        self._average = 0.0
+
+    @property
+    def variance(self) -> float:
+        """σ_b² (rad²): the unfloored average, floored at 0."""
+        return max(self._average, 0.0)
 
     def _at(self, s: float) -> tuple[Array, Array] | None:
         """γ̂ and P_γ (3,) of the estimate nearest to distance s; None outside the history.
@@ -397,7 +407,7 @@ class RepeatPassError:
                 d = g[trail] - lead[0][trail + 1]
                 samples.append(0.5 * (d * d - v[trail] - lead[1][trail + 1]))
         if samples:
-            self.variance = max(self._b * self.variance + (1.0 - self._b) * float(np.mean(samples)), 0.0)
+            self._average = self._b * self._average + (1.0 - self._b) * float(np.mean(samples))
         self._s.append(float(distance))
         self._gamma.append(g.copy())
         self._var.append(v.copy())

@@ -137,10 +137,10 @@ class RoverEstimate:
             (re)initialisation (False for the first estimates, whose
             variances describe a start from one window's measurements).
         consistency_nis: NIS over the channels of the diagnostics' innovation
-            test (velocimeter, slips, load cells;
+            test (slips, load cells, the side's force balance;
             :mod:`~terrain_estimation.estimators.rover_diagnostics`), 0 at
             initialisation.
-        consistency_dof: its degrees of freedom (10 two-axis, 7 single-axis).
+        consistency_dof: its degrees of freedom (11 two-axis: 9 channels and the force balance; 6 single-axis).
     """
 
     t: float

@@ -281,12 +281,12 @@ class SensorWindows:
         later; every window ending before it is closed, empty ones included,
         so a sample that arrives behind the watermark is late.
         """
-        latest = [self._latest.get(s) for s in _STREAMS]
-        seen = [v for v in latest if v is not None]
-        if not seen:
+        latest = self._latest  # only the streams of _STREAMS are ever recorded (_window_for)
+        if not latest:
             return
+        seen = latest.values()
         watermark = max(seen) - self.config.max_latency_s
-        if len(seen) == len(latest):
+        if len(latest) == len(_STREAMS):
             watermark = max(watermark, min(seen))
         assert self._t_origin is not None
         last_closed = math.ceil((watermark - 1e-9 - self._t_origin) / self.config.step_s) - 1

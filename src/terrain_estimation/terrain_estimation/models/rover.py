@@ -358,9 +358,29 @@ def wheel_centres(params: RoverParams, g: ArrayLike) -> Array:
     return mass_point_positions(params, g)[2:]
 
 
+#: The last wheel-centre Jacobians by (id(params), the bytes of θ, q1 — so −0.0 is not 0.0): one estimator step
+#: evaluates the same configuration several times (the contact angles, their derivatives, the slips); a hit
+#: returns the very same (read-only) array.
+_CENTRE_JACOBIANS: dict[tuple[int, bytes], tuple[RoverParams, Array]] = {}
+_CENTRE_JACOBIANS_SIZE = 32
+
+
 def wheel_centre_jacobian(params: RoverParams, g: ArrayLike) -> Array:
-    """d(x_j, z_j)/dg of the wheel centres: the J_v rows of the paper's J_a (eqs. 19, 21), shape (3, 2, 7)."""
-    return _point_jacobians(_Chain(params, _check_g(g)))[2:]
+    """d(x_j, z_j)/dg of the wheel centres: the J_v rows of the paper's J_a (eqs. 19, 21), shape (3, 2, 7).
+
+    Depends on θ and q1 alone (planar rotations); the result is read-only and may be shared between calls.
+    """
+    arr = _check_g(g)
+    key = (id(params), arr[_PITCH : _BOGIE + 1].tobytes())
+    hit = _CENTRE_JACOBIANS.get(key)
+    if hit is not None and hit[0] is params:
+        return hit[1]
+    jac = _point_jacobians(_Chain(params, arr))[2:]
+    jac.setflags(write=False)
+    if len(_CENTRE_JACOBIANS) >= _CENTRE_JACOBIANS_SIZE:
+        _CENTRE_JACOBIANS.clear()
+    _CENTRE_JACOBIANS[key] = (params, jac)
+    return jac
 
 
 def wheel_centre_bias_acceleration(params: RoverParams, g: ArrayLike, g_dot: ArrayLike) -> Array:

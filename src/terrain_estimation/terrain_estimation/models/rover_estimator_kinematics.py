@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -132,10 +133,30 @@ def slip_measurement_jacobian(
     Given the configuration the wheel-centre velocities and spins are linear
     in the rates, so the Jacobian is exact (first order in eqs. 1–2); it is 0
     for a clipped slip (|i| = 1).
+
+    The last call's result is kept: an estimator step asks for the same slips twice (the measurement, eq. 62,
+    and its variance); a repeated call returns copies of it.
     """
+    u = np.asarray(inputs, dtype=float)
+    key = (id(params), absolute_spin, np.array([pitch, bogie_angle], dtype=float).tobytes(), u.tobytes())
+    last = _LAST_SLIP_JACOBIAN[0]  # one read: another thread may replace the entry, never half of it
+    if last is not None and last[0] == key and last[1] is params:
+        return last[2].copy(), last[3].copy()
+    slip, jac = _slip_measurement_jacobian(params, pitch, bogie_angle, u, absolute_spin)
+    _LAST_SLIP_JACOBIAN[0] = (key, params, slip.copy(), jac.copy())
+    return slip, jac
+
+
+#: (key, params, slips, Jacobian) of the last :func:`slip_measurement_jacobian` call.
+_LAST_SLIP_JACOBIAN: list[tuple[Any, RoverParams, Array, Array] | None] = [None]
+
+
+def _slip_measurement_jacobian(
+    params: RoverParams, pitch: float, bogie_angle: float, u: Array, absolute_spin: bool
+) -> tuple[Array, Array]:
+    """:func:`slip_measurement_jacobian` without its one-call memory."""
     g = configuration(pitch, bogie_angle)
     A = _rate_map(pitch)
-    u = np.asarray(inputs, dtype=float)
     jv = wheel_centre_jacobian(params, g) @ A  # (3, 2, 6): d v_j / d inputs
     v = jv @ u
     norm = np.hypot(v[:, 0], v[:, 1])
@@ -257,12 +278,7 @@ def path_tangent_angles(
     three nodes (≈ (1, 4, 1), Simpson's weights, for equal spacing), so
     Σ c_j (γ_j − γ_geo,j) is free of them (:func:`contact_angles_with_vertical_speed`).
     """
-    centres = wheel_centres(params, configuration(pitch, bogie_angle))
-    x = centres[:, 0] - float(centres[:, 0].mean())
-    A = np.column_stack([np.ones(3), x, x * x])
-    heights = centres[:, 1] if sinkage is None else centres[:, 1] + np.asarray(sinkage, dtype=float)
-    coef = np.linalg.solve(A, heights)
-    slope = coef[1] + 2.0 * coef[2] * x
+    angles, x, A = _path_angles(params, pitch, bogie_angle, sinkage)
     errors = []
     for m in (3, 4):
         fit = np.linalg.solve(A, x**m)
@@ -271,7 +287,20 @@ def path_tangent_angles(
     weights = weights / (np.sum(np.abs(weights)) or 1.0)
     if weights.sum() < 0.0:
         weights = -weights
-    return -np.arctan(slope), weights
+    return angles, weights
+
+
+def _path_angles(
+    params: RoverParams, pitch: float, bogie_angle: float, sinkage: ArrayLike | None
+) -> tuple[Array, Array, Array]:
+    """The tangent angles of :func:`path_tangent_angles` alone, with the centred x_j and the design matrix."""
+    centres = wheel_centres(params, configuration(pitch, bogie_angle))
+    x = centres[:, 0] - float(centres[:, 0].mean())
+    A = np.column_stack([np.ones(3), x, x * x])
+    heights = centres[:, 1] if sinkage is None else centres[:, 1] + np.asarray(sinkage, dtype=float)
+    coef = np.linalg.solve(A, heights)
+    slope = coef[1] + 2.0 * coef[2] * x
+    return -np.arctan(slope), x, A
 
 
 @dataclass(frozen=True)
@@ -349,7 +378,7 @@ def contact_angles_with_vertical_speed(
     w = -float(weights @ (gamma0 - geo)) / denominator
     jac_geo = np.zeros((3, 5))
     for col, (dp, db) in enumerate(((angle_step, 0.0), (0.0, angle_step))):
-        jac_geo[:, col] = (path_tangent_angles(params, x[0] + dp, x[1] + db, sinkage)[0] - geo) / angle_step
+        jac_geo[:, col] = (_path_angles(params, x[0] + dp, x[1] + db, sinkage)[0] - geo) / angle_step
     dw = -(weights @ (jac0[:, :5] - jac_geo)) / denominator
     jac = jac0[:, :5] + np.outer(sensitivity, dw)
     # γ is an arctangent of the velocities: one Newton step on Σ c_j (γ_j(w) − γ_geo,j) = 0.

@@ -77,7 +77,7 @@ from terrain_estimation.estimators.rover import (
     TerrainResponseAccumulator,
     TerrainResponseFit,
 )
-from terrain_estimation.estimators.rover_diagnostics import FaultCheck, consistency_channels
+from terrain_estimation.estimators.rover_diagnostics import FaultCheck, consistency_dof
 from terrain_estimation.models.rover import WHEELS
 from terrain_estimation.params import ParamValue
 from terrain_estimation.ros.adapters import AdapterHealth, TopicSpec
@@ -251,9 +251,10 @@ class RoverAdapter:
     def reset(self) -> None:
         self.estimator.reset()
         self.accumulator.reset()
-        # NIS over the channels whose S is sensor noise plus state uncertainty (velocimeter, slips, load cells;
-        # estimators.rover_diagnostics says which are left out and why): chi-square with 10 (two-axis) or 7 dof.
-        dof = sum(len(c) for c in consistency_channels(self.estimator.config.load_cell_axes))
+        # NIS over the channels whose S is sensor noise plus state uncertainty (slips, load cells, and with two-axis
+        # cells the side's force balance; estimators.rover_diagnostics says which are left out and why):
+        # chi-square with 11 (two-axis) or 6 dof.
+        dof = consistency_dof(self.estimator.config.load_cell_axes)
         self.health = AdapterHealth(nis_dof=dof)
         self._fault_check = FaultCheck(
             dof, max(1, math.ceil(_FAULT_WINDOW_S * self.estimator.config.estimator_rate_hz - 1e-9)), _FAULT_PROBABILITY

@@ -323,6 +323,20 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
         0.0,
         0.5,
     ),
+    ParamSpec(
+        "filter.contact_angle_bias_from_repeat_pass",
+        _EC.contact_angle_bias.from_repeat_pass,
+        "raise the contact-angle error's sigma to what the wheels' repeat passes show (a trailing wheel meets the "
+        "ground its leader met 0.35 m earlier: half the mean square difference of their contact-angle estimates, "
+        "less their variances); false: filter.contact_angle_bias alone",
+    ),
+    ParamSpec(
+        "filter.contact_angle_bias_memory",
+        _EC.contact_angle_bias.memory_steps,
+        "[steps] the repeat-pass variance is averaged over this many estimator steps (5 = 1 s at 5 Hz)",
+        1.0,
+        1000.0,
+    ),
     ParamSpec("filter.ukf_alpha", _EC.ukf_alpha, "[-] UKF sigma-point spread alpha", 1e-3, 10.0),
     ParamSpec("filter.ukf_beta", _EC.ukf_beta, "[-] UKF beta (2: Gaussian prior)", 0.0, 10.0),
     ParamSpec(
@@ -629,7 +643,8 @@ CONFIG_PARAMETERS: dict[str, str] = {
     "gate_threshold": "filter.gate_threshold",
     "divergence": "filter.divergence_* (one monitor per filter)",
     "noise_matching": "filter.noise_matching, filter.noise_matching_*",
-    "contact_angle_bias": "filter.contact_angle_bias",
+    "contact_angle_bias": "filter.contact_angle_bias, filter.contact_angle_bias_from_repeat_pass, "
+    "filter.contact_angle_bias_memory",
     "settle_steps": "estimator.settle_steps",
     "sinkage": "estimator.sinkage, soil.*",
 }
@@ -684,7 +699,10 @@ def estimator_config(values: Mapping[str, ParamValue]) -> RoverEstimatorConfig:
             ceiling=_f(values, "filter.noise_matching_ceiling"),
         ),
         contact_angle_bias=ContactAngleBias(
-            enabled=_f(values, "filter.contact_angle_bias") > 0.0, sigma=_f(values, "filter.contact_angle_bias")
+            enabled=_f(values, "filter.contact_angle_bias") > 0.0,
+            sigma=_f(values, "filter.contact_angle_bias"),
+            from_repeat_pass=bool(values["filter.contact_angle_bias_from_repeat_pass"]),
+            memory_steps=_f(values, "filter.contact_angle_bias_memory"),
         ),
         settle_steps=int(values["estimator.settle_steps"]),
         sinkage=SinkageSoil(
