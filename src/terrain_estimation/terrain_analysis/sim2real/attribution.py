@@ -65,7 +65,14 @@ Method
          tolerance, leaves a held-out residual that fails the noise tests, or
          is matched by a runner-up of other physics (sensor vs vehicle): where,
          how big, the nearest catalogue description and why
-         (:func:`_structure_reasons`); never "explained by X".
+         (:func:`_structure_reasons`, :func:`_stability`: refits on the halves of
+         an operating regime that differ beyond their own joint interval);
+         never "explained by X".
+       * "no significant gap (within nominal tolerance …)": the best
+         explanation is a catalogue effect whose parameter is a nominal
+         parameter's error (the skid steer's effective wheel radius, its
+         cornering stiffness), fitted within 2 of the config's tolerances
+         (1 σ) of nominal (:func:`~terrain_analysis.sim2real.tolerance.within_tolerance`).
        An effect is also significant when the held-out *likelihood ratio*
        (:func:`_likelihood_ratio`: the residual's own level instead of the
        conservative budget, autocorrelation accounted for; for the most
@@ -132,6 +139,7 @@ from terrain_analysis.sim2real.structure import (
     _structure_verdict,
     _tolerance_rows,
 )
+from terrain_analysis.sim2real.tolerance import WITHIN, within_tolerance
 from terrain_analysis.sim2real.where import ChannelReport, _jsonable
 
 __all__ = [
@@ -274,6 +282,15 @@ def _like_with_like(
     if best is not leader:
         say(f"{best.name} is the best significant candidate over every fold (held-out χ² drop {best.cv_drop:.1f})")
     return best
+
+
+def _explanation_row(model: ReplayModel, best: FittedModel, row: dict[str, Any]) -> dict[str, Any]:
+    """A within-tolerance explanation's row of the tolerance table (:func:`_tolerance_rows`' layout)."""
+    effect, name = str(row["parameter"]).split(".", 1)
+    cand = model.candidates.get(effect)
+    unit = next((p.unit for p in cand.parameters if p.name == name), "–") if cand is not None else "–"
+    std = float(best.std.get(effect, {}).get(name, float("nan")))
+    return dict(row, unit=unit, std=std, within=True, explanation=True)
 
 
 # ---------------------------------------------------------------------------
@@ -449,9 +466,26 @@ def attribute(
                 kind = "structure_differs"
                 explained = ()
                 structure = _structure_summary(model, best, nominal, reasons)
+    tolerated: list[dict[str, Any]] = []
+    if kind == "explained" and best is not None:
+        # A catalogue effect that is a nominal parameter's error, fitted inside that parameter's stated
+        # tolerance, is a nominal mismatch, not a sim-to-real gap (issue 22, item 2; tolerance.within_tolerance).
+        tolerated = within_tolerance(model, best.parameters)
+        if tolerated:
+            kind, explained = "no_gap", ()
+            say(f"{best.name} is fitted within the nominal tolerance: no significant gap")
     not_identifiable = _not_identifiable(model, problem, nominal, ranking, settings)
     if kind == "no_gap":
         verdict = "no significant gap"
+        if tolerated:
+            verdict += (
+                " (within nominal tolerance: "
+                + "; ".join(
+                    f"{r['parameter']} = {r['fitted']:.4g}, nominal {r['nominal']:.4g} ± {r['tolerance']:.3g} (1σ)"
+                    for r in tolerated
+                )
+                + f", within {WITHIN:g}σ)"
+            )
         if not_identifiable:
             verdict += "; not identifiable from this bag: " + ", ".join(x["effect"] for x in not_identifiable)
     elif kind == "structure_differs":
@@ -521,7 +555,8 @@ def attribute(
         notes=notes + list(model.notes),
         structure=structure,
         not_identifiable=not_identifiable,
-        tolerances=_tolerance_rows(model, nominal),
+        tolerances=_tolerance_rows(model, nominal)
+        + [_explanation_row(model, best, r) for r in tolerated if best is not None],
         series=series,
         test_masks=dict(test),
     )

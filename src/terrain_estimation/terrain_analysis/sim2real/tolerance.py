@@ -25,6 +25,20 @@ Two kinds of targets (:data:`TARGETS`):
   it becomes a nuisance (:class:`ToleratedModel`), which the effect's own fit
   overrides when that effect is the candidate.
 
+A third kind, for a nominal parameter whose error *is* a catalogue effect
+that costs a re-run of the replay to fit (the skid steer's effective wheel
+radius, its cornering stiffness): fitting it as a nuisance in every model
+would make every fit dearer, so instead
+
+* ("within", "effect.parameter"): an explanation by that effect whose fitted
+  value lies within :data:`WITHIN` × the tolerance of its off value is a
+  mismatch inside the nominal tolerance, reported as "no significant gap
+  (within nominal tolerance …)", not as "explained by" the effect
+  (:func:`within_tolerance`). Beyond it, the effect is a gap as before.
+
+A tolerance is one standard deviation: a real vehicle's parameter lies
+within 2 σ of the config value in 95 % of cases, hence :data:`WITHIN` = 2.
+
 A tolerance of 0 means "known exactly": not fitted.
 """
 
@@ -40,19 +54,34 @@ from numpy.typing import NDArray
 from terrain_analysis.sim2real.model import Candidate, Channel, FitParameter, ReplayModel
 from terrain_estimation.params import ParamSpec, default_config_path, load_parameter_file, resolve_parameters
 
-__all__ = ["SECTION", "SPECS", "TARGETS", "ToleratedModel", "nuisance_names", "tolerances", "with_tolerances"]
+__all__ = [
+    "SECTION",
+    "SPECS",
+    "TARGETS",
+    "WITHIN",
+    "ToleratedModel",
+    "nuisance_names",
+    "tolerances",
+    "with_tolerances",
+    "within_tolerance",
+]
 
 FloatArray = NDArray[np.float64]
+
+WITHIN = 2.0
+"""An effect fitted within this many tolerances (1 σ) of its off value is within nominal tolerance."""
 
 SECTION = "sim2real"
 """Node name of the config section (``"/**/sim2real"``) that holds the tolerances."""
 
-#: Where each tolerance applies: ("nuisance", replay nuisance name) or ("effect", "effect.parameter").
+#: Where each tolerance applies: ("nuisance", replay nuisance name), ("effect", "effect.parameter") or
+#: ("within", "effect.parameter") (module docstring).
 TARGETS: Mapping[str, tuple[str, str]] = {
     "tolerance.sprung_mass": ("effect", "sprung_mass_change.sprung_mass_change"),
     "tolerance.rolling_resistance": ("nuisance", "rolling_resistance"),
     "tolerance.longitudinal_stiffness": ("nuisance", "longitudinal_stiffness_scale"),
-    "tolerance.cornering_stiffness": ("nuisance", "cornering_stiffness_scale"),
+    "tolerance.wheel_radius": ("within", "wheel_radius_error.wheel_radius_error"),
+    "tolerance.cornering_stiffness": ("within", "cornering_stiffness_change.cornering_stiffness_change"),
     "tolerance.friction": ("nuisance", "friction_scale"),
     "tolerance.yaw_inertia": ("nuisance", "yaw_inertia_scale"),
 }
@@ -90,10 +119,23 @@ SPECS: Mapping[str, tuple[ParamSpec, ...]] = {
             1.0,
         ),
         ParamSpec(
-            "tolerance.cornering_stiffness",
+            "tolerance.wheel_radius",
+            0.015,
+            "[-] relative tolerance (1 sigma) of the effective rolling radius R (vehicle.wheel_radius): on "
+            "deformable ground a tire's effective radius differs from its unloaded one by 2-3 % (deflection "
+            "under load, sinkage, tread), so +-3 % is 2 sigma; a wheel_radius_error fitted within 2 sigma reads "
+            "'no significant gap (within nominal tolerance)'; 0: known exactly",
             0.0,
-            "[-] relative tolerance (1 sigma) of the cornering stiffness C_a (vehicle.cornering_stiffness); "
-            "0 (default): known exactly, a mismatch is the catalogue's cornering_stiffness_change",
+            0.2,
+        ),
+        ParamSpec(
+            "tolerance.cornering_stiffness",
+            0.15,
+            "[-] relative tolerance (1 sigma) of the cornering stiffness C_a (vehicle.cornering_stiffness): "
+            "a datasheet C_a holds on one surface at one load and pressure, on real ground it is uncertain by "
+            "about +-30 % (2 sigma); a cornering_stiffness_change factor fitted within 1 +- 2 sigma reads "
+            "'no significant gap (within nominal tolerance)'; 0: known exactly, any mismatch is the catalogue's "
+            "cornering_stiffness_change",
             0.0,
             1.0,
         ),
@@ -167,6 +209,8 @@ class ToleratedModel:
         self.applied: list[str] = []
         self.skipped: list[str] = []
         self._effect_nuisance: dict[str, tuple[str, str]] = {}
+        #: "effect.parameter" → (off, tolerance) of the ("within", …) targets (:func:`within_tolerance`).
+        self.within: dict[str, tuple[float, float]] = {}
         by_name = {p.name: p for p in model.nuisance}
         nuisance: list[FitParameter] = []
         tolerated: dict[str, float] = {}
@@ -186,6 +230,10 @@ class ToleratedModel:
             p = next((q for q in cand.parameters if q.name == param), None) if cand is not None else None
             if p is None:
                 self.skipped.append(f"{key} ({target} is not a candidate of this replay)")
+                continue
+            if kind == "within":
+                self.within[target] = (p.off, tol)
+                self.applied.append(f"{target} within {WITHIN:g} × {tol:g}")
                 continue
             lo, hi = max(p.bounds[0], p.off - 3.0 * tol), min(p.bounds[1], p.off + 3.0 * tol)
             nuisance.append(FitParameter(target, p.unit, p.off, (lo, hi), tol, prior_std=tol))
@@ -208,6 +256,14 @@ class ToleratedModel:
             )
         if self.skipped:
             self.notes.append("tolerances not applicable to this replay: " + ", ".join(self.skipped))
+
+        if self.within:
+            self.notes.append(
+                "an explanation by "
+                + ", ".join(sorted(self.within))
+                + f" fitted within {WITHIN:g} × its nominal tolerance is reported as within nominal tolerance, "
+                "not as a gap"
+            )
 
     # --- the protocol -----------------------------------------------------
 
@@ -282,3 +338,26 @@ def with_tolerances(model: ReplayModel, values: Mapping[str, float]) -> ReplayMo
         return model
     wrapped = ToleratedModel(model, values)
     return cast(ReplayModel, wrapped) if wrapped.applied else model
+
+
+def within_tolerance(model: ReplayModel, parameters: Mapping[str, Mapping[str, float]]) -> list[dict[str, Any]]:
+    """Rows {parameter, nominal, tolerance, fitted} when every fitted parameter is within nominal tolerance.
+
+    ``parameters``: a fitted explanation ({effect: {parameter: value}}). Each of
+    its parameters must be the error of a nominal parameter with a ("within",
+    …) tolerance (:attr:`ToleratedModel.within`) and lie within
+    :data:`WITHIN` × that tolerance of its off value; otherwise ``[]`` (the
+    explanation is a gap).
+    """
+    within: Mapping[str, tuple[float, float]] = getattr(model, "within", None) or {}
+    rows: list[dict[str, Any]] = []
+    for effect, values in parameters.items():
+        for name, value in values.items():
+            key = f"{effect}.{name}"
+            if key not in within:
+                return []
+            off, tol = within[key]
+            if not abs(float(value) - off) <= WITHIN * tol:
+                return []
+            rows.append({"parameter": key, "nominal": off, "tolerance": tol, "fitted": float(value)})
+    return rows
