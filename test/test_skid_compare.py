@@ -84,4 +84,4 @@ def test_consider_section_holds_the_estimates_and_ranks_the_settings() -> None:
     assert len({(r.rms_vx, r.rms_vy, r.mean_abs_beta) for r in rows}) == 1
     vx = [by[f].normalised_vx for f in by]
     assert vx == sorted(vx, reverse=True) and vx[0] > 5.0 * vx[2]
-    assert "| straight_acceleration | resistance 0.02, C_x 5 % (default) | 1 |" in consider_markdown(rows)
+    assert "| straight_acceleration | resistance 0.02, C_x 15 % (default) | 1 |" in consider_markdown(rows)

@@ -521,7 +521,7 @@ def _consider(
         A, ok2 = solve(P_prior, new)
         if not (ok1 and ok2):
             return fail
-        new = mul(P_post, A) - mul(np.ascontiguousarray(Kt.T), Hc)  # P⁺ P̄⁻¹ Ψ⁻ − K H_c
+        new = mul(P_post, A) + mul(np.ascontiguousarray(Kt.T), Hc)  # P⁺ P̄⁻¹ Ψ⁻ + K H_c
     if not all_finite(new):
         return fail
     a = np.empty((n_s, k))

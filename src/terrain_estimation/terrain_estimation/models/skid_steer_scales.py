@@ -64,7 +64,11 @@ on level ground (a sharp turn reads ``g_y ≈ −0.13 m/s²``), which is why the
 option is off by default (3 seeds, against the default without it: on the
 5° bank mean |e_β| 1.89 against 2.13 mrad, RMS e_vy 0.0033 against 0.0037
 m/s; on the level nominal turn 2.00 against 1.57 mrad, 0.0029 against 0.0023
-m/s).
+m/s). A tighter prior does not keep the states out of it: with ``slope_std``
+0.5 m/s² (3°) and ``slope_time_s`` 600 or 3600 s the nominal turn's |e_β| is
+1.92–1.93 mrad against 1.95 with the defaults and 1.53 without the states
+(seed 1000): the lateral model error they take up (≈ 0.13 m/s² in the sharp
+turn, under 1° of bank) is inside any prior that still admits a real bank.
 
 The forces are the shared brush model (:mod:`~terrain_estimation.models.skid_steer`,
 MODELS.md B.4) evaluated with the per-point effective parameters:
