@@ -33,6 +33,7 @@ import array
 import struct
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import cache
 from typing import Any
 
@@ -40,7 +41,7 @@ import numpy as np
 from rclpy.serialization import deserialize_message
 from rosidl_parser import definition as rosidl
 
-__all__ = ["decoder_for", "Decoder"]
+__all__ = ["decoder_for", "Decoder", "StampedLayout", "stamped_layout"]
 
 Decoder = Callable[[bytes], Any]
 
@@ -301,3 +302,111 @@ def decoder_for(msg_type: type) -> Decoder | None:
 
     decode.__qualname__ = f"decode_{msg_type.__name__}"
     return decode
+
+
+# -- decoding in bulk ----------------------------------------------------------------------------------------
+#
+# A stamped sample (a Header, then float64s only: ``geometry_msgs/PointStamped``, ``sensor_msgs/Imu``) whose
+# frame is the one expected has a fixed length and a fixed place for each field: the messages of one topic can
+# be decoded all at once as a numpy record array, with no per-message object. The offline replay does that for
+# the samples it may judge on arrays (:meth:`~terrain_estimation.ros.validation.InputGuard.stateless_ok`);
+# anything else (another length, frame, encapsulation) goes through :func:`decoder_for` one by one.
+
+
+@dataclass(frozen=True)
+class StampedLayout:
+    """Where plain little-endian CDR of a stamped sample with one given frame keeps its stamp and fields.
+
+    Attributes:
+        length: bytes of such a message (encapsulation header included).
+        head: the bytes every such message starts with at ``head_at``: the frame's length, text and NUL.
+        dtype: a record of ``sec`` (int32), ``nanosec`` (uint32) and the fields asked (float64), in order.
+    """
+
+    length: int
+    head: bytes
+    head_at: int
+    dtype: np.dtype
+
+    def decode(self, raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(match, stamp_ns, values)`` of messages all ``length`` bytes long: ``match`` is False where the
+        encapsulation or the frame is not this layout's (those rows mean nothing); ``stamp_ns`` int64,
+        ``values`` one float64 row per message. The same numbers as :func:`decoder_for`'s objects hold."""
+        buf = b"".join(raws)
+        matrix = np.frombuffer(buf, np.uint8).reshape(len(raws), self.length)
+        head = np.frombuffer(self.head, np.uint8)
+        match = (matrix[:, 0] == 0) & (matrix[:, 1] == 1)
+        match &= (matrix[:, self.head_at : self.head_at + len(head)] == head).all(axis=1)
+        records = np.frombuffer(buf, self.dtype)
+        stamp_ns = records["sec"].astype(np.int64) * 1_000_000_000 + records["nanosec"].astype(np.int64)
+        columns = [records[name] for name in self.dtype.names[2:]]  # type: ignore[index]
+        values = np.column_stack(columns) if columns else np.empty((len(raws), 0))
+        return match, stamp_ns, values.astype(np.float64)
+
+
+def _is_double(t: Any) -> bool:
+    return isinstance(t, rosidl.BasicType) and t.typename == "double"
+
+
+def _double_slots(cls: type, prefix: str, out: dict[str, tuple[int, int]], skip: int = 0) -> bool:
+    """Into ``out``, path -> (first float64 of the message's run, how many) of every field of ``cls`` after its
+    first ``skip``, which must hold float64s only (basic, fixed arrays, nested such messages); False when not."""
+    names = list(cls.get_fields_and_field_types())  # type: ignore[attr-defined]
+    types = list(cls.SLOT_TYPES)  # type: ignore[attr-defined]
+    for name, t in zip(names[skip:], types[skip:], strict=True):
+        path = prefix + name
+        count = _slot_count(out)
+        if _is_double(t):
+            out[path] = (count, 1)
+        elif isinstance(t, rosidl.Array) and _is_double(t.value_type):
+            out[path] = (count, int(t.size))
+        elif isinstance(t, rosidl.NamespacedType):
+            if not _double_slots(_message_class(t), path + ".", out):
+                return False
+        else:
+            return False
+    return True
+
+
+def _slot_count(out: dict[str, tuple[int, int]]) -> int:
+    return max((start + width for start, width in out.values()), default=0)
+
+
+def stamped_layout(msg_type: type, frame_id: str, fields: tuple[str, ...]) -> StampedLayout | None:
+    """The :class:`StampedLayout` of ``msg_type`` with frame ``frame_id`` and the float64 ``fields``
+    (``"point.x"``, ``"linear_acceleration_covariance"``: a fixed array gives one column per element), or None
+    when the type is not a Header followed by float64s only (``PointStamped``, ``Imu``), a field is not one
+    of them, or the frame is empty or holds a NUL."""
+    try:
+        names = list(msg_type.get_fields_and_field_types())  # type: ignore[attr-defined]
+        slot_types = list(msg_type.SLOT_TYPES)  # type: ignore[attr-defined]
+    except AttributeError:
+        return None
+    if len(names) < 2 or names[0] != "header" or not isinstance(slot_types[0], rosidl.NamespacedType):
+        return None
+    if tuple(slot_types[0].namespaced_name()) != ("std_msgs", "msg", "Header"):
+        return None
+    slots: dict[str, tuple[int, int]] = {}
+    if not _double_slots(msg_type, "", slots, skip=1):
+        return None
+    text = frame_id.encode()
+    if not text or b"\x00" in text or any(f not in slots for f in fields):
+        return None
+    # Payload offsets (CDR aligns relative to the byte after the 4-byte encapsulation header): stamp.sec 0,
+    # stamp.nanosec 4, frame length 8, its text and NUL from 12, then the float64s aligned to 8.
+    after_frame = 12 + len(text) + 1
+    start = 4 + after_frame + (-after_frame) % 8
+    length = start + 8 * _slot_count(slots)
+    formats: list[Any] = ["<i4", "<u4"]
+    for f in fields:
+        width = slots[f][1]
+        formats.append("<f8" if width == 1 else ("<f8", (width,)))
+    dtype = np.dtype(
+        {
+            "names": ["sec", "nanosec", *(f"v{i}" for i in range(len(fields)))],
+            "formats": formats,
+            "offsets": [4, 8, *(start + 8 * slots[f][0] for f in fields)],
+            "itemsize": length,
+        }
+    )
+    return StampedLayout(length, struct.pack("<I", len(text) + 1) + text + b"\x00", 12, dtype)

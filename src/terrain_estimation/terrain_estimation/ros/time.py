@@ -7,7 +7,7 @@ from typing import Any
 
 from builtin_interfaces.msg import Time
 
-__all__ = ["stamp_to_sec", "stamp_to_ns", "sec_to_stamp", "ns_to_stamp"]
+__all__ = ["stamp_to_sec", "stamp_to_ns", "sec_to_stamp", "stamp_parts", "ns_to_stamp"]
 
 
 def stamp_to_ns(stamp: Any) -> int:
@@ -31,6 +31,16 @@ def sec_to_stamp(t: float) -> Time:
     Raises:
         ValueError: for a non-finite or negative time (ROS time is unsigned).
     """
+    sec, nanosec = stamp_parts(t)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def stamp_parts(t: float) -> tuple[int, int]:
+    """``(sec, nanosec)`` of :func:`sec_to_stamp`'s ``Time``.
+
+    Raises:
+        ValueError: for a non-finite or negative time (ROS time is unsigned).
+    """
     if not math.isfinite(t) or t < 0.0:
         raise ValueError(f"time {t!r} s cannot be a ROS stamp")
-    return ns_to_stamp(round(t * 1e9))
+    return divmod(round(t * 1e9), 1_000_000_000)

@@ -60,7 +60,7 @@ from __future__ import annotations
 import array
 import math
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from operator import attrgetter
@@ -494,23 +494,10 @@ class InputGuard:
                 f"{stamp_s:.9g} s (clock {now_s:.9g} s)",
                 f"is more than input.max_future_stamp = {self.max_future_s:g} s ahead of the clock",
             )
-        previous = self._last_stamp_ns.get(key)
-        if previous is not None and stamp_ns == previous:
-            return Rejection(topic, "header.stamp", f"{stamp_s:.9g} s", "duplicates the previous sample's")
-        if previous is not None and stamp_ns < previous:
-            count, last = self._behind.get(key, (0, -1))
-            count = count + 1 if stamp_ns > last else 1
-            self._behind[key] = (count, stamp_ns)
-            value = f"{stamp_s:.9g} s (previous {previous * 1e-9:.9g} s)"
-            if self.rebase_after > 0 and count >= self.rebase_after:
-                self.reset()
-                self._last_stamp_ns[key] = stamp_ns
-                return Rejection(topic, "header.stamp", value, "went back for good (a new time line)", rebase=True)
-            return Rejection(topic, "header.stamp", value, "is before the previous sample's (out of order)")
-        self._behind.pop(key, None)
-        plan = self._plans.get(key)
-        if plan is None or plan.spec is not spec:
-            plan = self._plans[key] = _InputPlan(spec)
+        rejection = self._check_order(key, topic, stamp_ns)
+        if rejection is not None:
+            return rejection
+        plan = self._plan(key)
         values = []
         for (path, get), bound in zip(plan.fields, plan.bounds, strict=True):
             try:
@@ -523,24 +510,105 @@ class InputGuard:
                 self._last_stamp_ns[key] = stamp_ns  # the stream's order is still followed
                 return Rejection(topic, path, _fmt(float(value)), f"is beyond {bound[0]:.4g} ({bound[1]}): a glitch")
             values.append(value)
-        for path, get in plan.covariances:
-            cov = np.asarray(get(msg), dtype=float)
+        covariances = (np.asarray(get(msg), dtype=float) for _path, get in plan.covariances)
+        return self._check_tail(key, spec, plan, stamp_ns, values, covariances)
+
+    def _check_tail(
+        self, key: str, spec: Any, plan: _InputPlan, stamp_ns: int, values: Sequence[Any], covariances: Iterable[Any]
+    ) -> Rejection | None:
+        """:meth:`check` after the fields: the covariances (``plan.covariances``' arrays, in order), then an
+        accelerometer's specific force; the stamp becomes the topic's last."""
+        for (path, _get), cov in zip(plan.covariances, covariances, strict=True):
             raw = cov.tobytes() if cov.ndim == 1 else None
             if raw is not None and self._usable_covariance.get((key, path)) == raw:
                 continue
             problem = _covariance_problem(cov)
             if problem is not None:
-                return Rejection(topic, path, problem[0], problem[1])
+                return Rejection(spec.topic, path, problem[0], problem[1])
             if raw is not None:
                 self._usable_covariance[(key, path)] = raw
         if plan.gravity_fields:  # an accelerometer: its specific force
             vector = tuple(float(v) for v in values[len(spec.fields) :])
-            rejection = self._check_specific_force(key, spec, plan, stamp_s, vector)
+            rejection = self._check_specific_force(key, spec, plan, stamp_ns * 1e-9, vector)
             if rejection is not None:
                 self._last_stamp_ns[key] = stamp_ns  # the stream's order is still followed
                 return rejection
         self._last_stamp_ns[key] = stamp_ns
         return None
+
+    def _check_order(self, key: str, topic: str, stamp_ns: int) -> Rejection | None:
+        """The stamp against the previous accepted one of ``key``: a duplicate, out of order, or a new time line."""
+        previous = self._last_stamp_ns.get(key)
+        if previous is not None and stamp_ns <= previous:
+            stamp_s = stamp_ns * 1e-9
+            if stamp_ns == previous:
+                return Rejection(topic, "header.stamp", f"{stamp_s:.9g} s", "duplicates the previous sample's")
+            count, last = self._behind.get(key, (0, -1))
+            count = count + 1 if stamp_ns > last else 1
+            self._behind[key] = (count, stamp_ns)
+            value = f"{stamp_s:.9g} s (previous {previous * 1e-9:.9g} s)"
+            if self.rebase_after > 0 and count >= self.rebase_after:
+                self.reset()
+                self._last_stamp_ns[key] = stamp_ns
+                return Rejection(topic, "header.stamp", value, "went back for good (a new time line)", rebase=True)
+            return Rejection(topic, "header.stamp", value, "is before the previous sample's (out of order)")
+        if self._behind:
+            self._behind.pop(key, None)
+        return None
+
+    # -- the offline path's checks on arrays ------------------------------------------------------------------
+    def array_fields(self, key: str) -> tuple[str, ...]:
+        """The fields the offline path decodes in bulk for ``key``, in this order: the checked fields (the
+        TopicSpec's ``fields`` then ``gravity_fields``), then the covariances. Empty: ``key``'s messages are
+        checked one by one (no frame to check, which fixes the layout, or a field not reachable as a path)."""
+        spec = self.inputs[key]
+        plan = self._plan(key)
+        paths = (*(p for p, _ in plan.fields), *(p for p, _ in plan.covariances))
+        return paths if spec.frame_id and not any("[" in p for p in paths) else ()
+
+    def stateless_ok(self, key: str, stamp_ns: np.ndarray, clock_ns: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """Per message of ``key`` (its frame known to match): True when :meth:`check` would pass it on every
+        rule that needs no state (the stamp not ahead of the clock, the checked fields finite and within their
+        bounds), with the same comparisons and the same float arithmetic as :meth:`check`, on arrays.
+
+        Args:
+            stamp_ns: the stamps (int64 ns); clock_ns: the clock at each message (int64 ns, the bag's log time);
+            values: the checked fields (:meth:`array_fields` without the covariances), one row per message.
+        """
+        plan = self._plan(key)
+        ok = ~(stamp_ns * 1e-9 > clock_ns * 1e-9 + self.max_future_s)
+        ok &= np.isfinite(values).all(axis=1)
+        for column, bound in enumerate(plan.bounds):
+            if bound is not None:
+                ok &= (-bound[0] <= values[:, column]) & (values[:, column] <= bound[0])
+        return ok
+
+    def check_decoded(
+        self, key: str, stamp_ns: int, values: Sequence[float], covariances: Sequence[np.ndarray]
+    ) -> Rejection | None:
+        """:meth:`check` of a message of ``key`` given by the numbers :meth:`array_fields` names, once
+        :meth:`stateless_ok` passed it: what is left to judge needs the guard's state (the stamp's order, the
+        covariances seen, the accelerometer's window). Counted as :meth:`check` counts."""
+        spec = self.inputs[key]
+        rejection = self._check_order(key, spec.topic, stamp_ns)
+        if rejection is None:
+            plan = self._plan(key)
+            if plan.covariances or plan.gravity_fields:
+                rejection = self._check_tail(key, spec, plan, stamp_ns, values, covariances)
+            else:  # what the tail does without covariances and accelerometer
+                self._last_stamp_ns[key] = stamp_ns
+        if rejection is None:
+            self.accepted += 1
+        else:
+            self.rejected[rejection.reason] = self.rejected.get(rejection.reason, 0) + 1
+        return rejection
+
+    def _plan(self, key: str) -> _InputPlan:
+        spec = self.inputs[key]
+        plan = self._plans.get(key)
+        if plan is None or plan.spec is not spec:
+            plan = self._plans[key] = _InputPlan(spec)
+        return plan
 
     def _check_specific_force(
         self, key: str, spec: Any, plan: _InputPlan, t: float, vector: tuple[float, ...]

@@ -35,7 +35,6 @@ import argparse
 import gc
 import math
 import sys
-import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,8 +47,8 @@ from terrain_estimation.cli import EXIT_OK, InputError, run_cli
 from terrain_estimation.config_sections import describes_another_kind, node_file_values
 from terrain_estimation.outputs import check_output_path
 from terrain_estimation.params import ParamValue, parse_override, resolve_parameters
-from terrain_estimation.ros.framework import JudgedInputs
-from terrain_estimation.ros.validation import InputGuard, first_nonfinite
+from terrain_estimation.ros.validation import InputGuard
+from terrain_estimation.tools.estimate_replay import Replay, replay_bulk, replay_messages
 from terrain_estimation.vehicles import VEHICLES, estimator_parameters, get_vehicle
 
 __all__ = [
@@ -146,12 +145,15 @@ def run_adapter(
     progress: bool = False,
     values: Mapping[str, Any] | None = None,
     previous: bool = False,
+    bulk: bool = True,
 ) -> EstimationRun:
     """Feed ``adapter`` every input message of ``bag``, in recorded order.
 
     The ground-truth topics are read when ``run.truth`` is first asked for, and the garbage collector
     pauses during the replay (``previous``: the truth decoded during the run and the collector running,
-    as the previous path did, for the benchmark's side-by-side figures).
+    as the path before those did, for the benchmark's side-by-side figures). The adapter's numeric
+    inputs are decoded and checked in bulk (:func:`~terrain_estimation.tools.estimate_replay.replay_bulk`;
+    ``bulk=False`` or ``previous``: every message as an object, as before, with the same estimates).
 
     With the node's parameter ``values`` the messages pass the same input checks
     as in the live node (:class:`~terrain_estimation.ros.validation.InputGuard`;
@@ -202,65 +204,17 @@ def run_adapter(
     if not previous:
         gc.disable()
     try:
-        _replay(run, adapter, bag, read, types, undecodable, inputs, truth_topics, outputs, guard, eager, progress)
+        replay = Replay(run, adapter, bag, read, types, undecodable, inputs, outputs, guard, progress)
+        if previous or not bulk:
+            replay_messages(replay, truth_topics, eager)
+        else:
+            replay_bulk(replay)
     finally:
         if collecting:
             gc.enable()
     if previous:
         run.truth = eager
     return run
-
-
-def _replay(
-    run: EstimationRun,
-    adapter: Any,
-    bag: str | Path,
-    read: list[str],
-    types: Mapping[str, str],
-    undecodable: Callable[[str, int, BaseException], None],
-    inputs: Mapping[str, str],
-    truth_topics: Mapping[str, str],
-    outputs: Mapping[str, str],
-    guard: InputGuard | None,
-    eager: dict[str, list[Any]],
-    progress: bool,
-) -> None:
-    """The message loop of :func:`run_adapter`."""
-    eager_truth = len(read) > len(inputs)
-    judged = isinstance(adapter, JudgedInputs)
-    started = time.monotonic()
-    last_report = started
-    for item in read_bag(bag, read, types=types, on_undecodable=undecodable):
-        if eager_truth and item.topic in truth_topics:
-            eager.setdefault(truth_topics[item.topic], []).append(item.msg)
-            continue
-        run.inputs_read += 1
-        run.topics_read[item.topic] = run.topics_read.get(item.topic, 0) + 1
-        key_in = inputs[item.topic]
-        if guard is not None:
-            rejection = guard.check(key_in, item.msg, item.log_time_ns * 1e-9)
-            if rejection is not None:
-                run.rejected[rejection.reason] = run.rejected.get(rejection.reason, 0) + 1
-                if rejection.restart or rejection.rebase:
-                    run.restarts += 1
-                    adapter.reset()
-                continue
-            if judged:  # estimates made before the gravity check has judged every accelerometer are not converged
-                adapter.inputs_judged = guard.gravity_judged
-        run.accepted += 1
-        for key, out in adapter.handle(key_in, item.msg):
-            bad = first_nonfinite(out)
-            if bad is not None:
-                reason = f"{outputs[key]}: {bad[0]} not finite"
-                run.outputs_dropped[reason] = run.outputs_dropped.get(reason, 0) + 1
-                continue
-            run.outputs.append((outputs[key], out, item.log_time_ns))
-        if progress and time.monotonic() - last_report > 2.0:
-            last_report = time.monotonic()
-            print(
-                f"  ... {run.inputs_read} messages, {len(run.outputs)} estimates, {last_report - started:.0f} s",
-                file=sys.stderr,
-            )
 
 
 def estimate_bag(
@@ -272,6 +226,7 @@ def estimate_bag(
     overrides: Mapping[str, Any] | None = None,
     progress: bool = False,
     reference: bool = False,
+    bulk: bool = True,
 ) -> EstimationRun:
     """Run ``vehicle``'s estimator over ``bag`` (see :func:`run_adapter`).
 
@@ -280,6 +235,8 @@ def estimate_bag(
             (Python) filter step where an adapter also has a compiled one (``adapter.set_compiled(False)``:
             the skid steer's), the ground truth decoded during the run, the garbage collector running
             (:func:`run_adapter`). The estimates agree to rounding.
+        bulk: the numeric inputs decoded and checked in bulk (the default; False: one message at a time, as
+            before; the same estimates, bit for bit: :func:`run_adapter`).
     """
     entry = get_vehicle(vehicle)
     ns = namespace if namespace is not None else entry.namespace
@@ -288,7 +245,7 @@ def estimate_bag(
     set_compiled = getattr(adapter, "set_compiled", None)
     if reference and callable(set_compiled):
         set_compiled(False)
-    run = run_adapter(adapter, ns, bag, progress=progress, values=values, previous=reference)
+    run = run_adapter(adapter, ns, bag, progress=progress, values=values, previous=reference, bulk=bulk)
     health = getattr(getattr(adapter, "health", None), "values", {})
     run.divergences = int(health.get("divergences", 0))
     run.limit_resets = int(health.get("limit_resets", 0))
