@@ -331,6 +331,29 @@ def _nis_message(rclpy_context, values) -> str:
         node.destroy_node()
 
 
+def test_nis_band_allows_the_model_tolerance_and_no_more(rclpy_context):
+    """White innovations whose variance is 7 % below the prediction over a full window: outside the chi-square
+    band (its width is about 1/sqrt(n dof)), inside the default model tolerance of 10 %; 25 % low WARNs."""
+    import numpy as np
+
+    rng = np.random.default_rng(3)
+    white = rng.chisquare(11, 200)  # the health window holds 200
+    white = white / white.mean()  # mean NIS exactly the dof after the scaling below
+    node = EstimatorNode("nis_tolerance", SPECS, RunningMeanAdapter, namespace="/nis", context=rclpy_context)
+    try:
+        node.adapter.health.nis_dof = 11
+        node.adapter.health.nis.extend(0.93 * 11 * white)
+        assert "innovations inconsistent" not in node.diagnostic_status().message
+        node.values["diagnostics.nis_tolerance"] = 0.0
+        assert "innovations inconsistent" in node.diagnostic_status().message
+        node.values["diagnostics.nis_tolerance"] = 0.1
+        node.adapter.health.nis.clear()
+        node.adapter.health.nis.extend(0.75 * 11 * white)
+        assert "innovations inconsistent" in node.diagnostic_status().message
+    finally:
+        node.destroy_node()
+
+
 def test_nis_band_counts_the_effective_samples_of_coloured_innovations(rclpy_context):
     """Innovations coloured by model error (AR(1), rho 0.95) with a mean NIS 30 % low: healthy, not WARN;
     the same mean from white innovations is a real inconsistency (WARN); a fault (5x) WARNs either way."""

@@ -84,6 +84,10 @@ class EstimatorDiagnostics(AdapterNode[EstimatorAdapter]):
 
             tau = integrated_autocorrelation_time(list(health.nis)) if n >= 8 else 1.0
             lo, hi = chi2_mean_band(health.nis_dof, n / tau, p)
+            # The model tolerance (diagnostics.nis_tolerance): a predicted innovation variance a few per cent
+            # off is not a fault; the statistical band of a long window is narrower than that.
+            tolerance = float(self.values["diagnostics.nis_tolerance"])
+            lo, hi = lo * (1.0 - tolerance), hi * (1.0 + tolerance)
             values.update(nis_mean=mean_nis, nis_band_low=lo, nis_band_high=hi, nis_window=n, nis_tau=tau)
             if not math.isfinite(mean_nis) or mean_nis > hi or mean_nis < lo:
                 level = diag.worst(level, diag.WARN)

@@ -67,6 +67,17 @@ ESTIMATOR_NODE_SPECS: tuple[ParamSpec, ...] = (
         0.9999,
     ),
     ParamSpec(
+        "diagnostics.nis_tolerance",
+        0.1,
+        "[-] model tolerance of the mean NIS: WARN only outside the chi-square band widened by this fraction "
+        "(lower bound x (1 - tolerance), upper x (1 + tolerance)). The band alone tests white innovations of "
+        "exactly the predicted variance, which no model of a real vehicle meets; a predicted innovation "
+        "variance right within this fraction is consistent for a consumer of the published variances, and a "
+        "sensor fault moves the mean by far more; 0: the chi-square band alone",
+        0.0,
+        1.0,
+    ),
+    ParamSpec(
         "input.take_queued",
         50,
         "[messages] after each input message the executor delivers, also take up to this many messages "
