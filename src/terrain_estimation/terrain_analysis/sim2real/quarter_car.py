@@ -250,6 +250,25 @@ def _soil_force(u: float, a: float, lam: float) -> tuple[float, float]:  # pragm
 
 
 @compiled
+def _bracket_end(
+    u: float, step: float, up: bool, ratio: float, target: float, a: float, lam: float
+) -> float:  # pragma: no cover
+    """The far end of the Newton bracket of :func:`_chain_force`: from ``u`` (where
+    g(u) = (k_s/k) G(u) + u − D/z₀ has the other sign) by ``step``, doubled until g changes sign."""
+    if up:  # g(u) < 0: the bracket's right end
+        right = u + step
+        while ratio * _soil_force(right, a, lam)[0] + right - target < 0.0:
+            step *= 2.0
+            right += step
+        return right
+    left = u - step
+    while ratio * _soil_force(left, a, lam)[0] + left - target > 0.0:
+        step *= 2.0
+        left -= step
+    return left
+
+
+@compiled
 def _chain_force(
     deflection: float, series: float, k_s: float, load: float, a: float, lam: float
 ) -> float:  # pragma: no cover
@@ -260,35 +279,48 @@ def _chain_force(
     the static point), F_s = W + W G(u) (:func:`_soil_force`): a > 0 stiffens
     and a < 0 softens under extra load, λ sets the law's higher orders.
     The chain's compression D = (F_s − W)/k + δ is solved for u by
-    safeguarded Newton on g(u) = (k_s/k) G(u) + u − D/z₀, increasing in u.
+    safeguarded Newton on g(u) = (k_s/k) G(u) + u − D/z₀, increasing in u,
+    from the linear chain's answer u₀. The bracket [left, right] starts at u₀
+    on one side and, on the other, at u₀ ± step doubled until g changes sign
+    (:func:`_bracket_end`); that far end is found only when a Newton step
+    needs it (it lies beyond u₀ ± step, so a step short of that is inside):
+    the iterates are those of the eager bracket, number for number.
     """
     ratio = k_s / series
     target = deflection * k_s / load
     u = target / (1.0 + ratio)  # the linear chain's answer
     step = max(0.5, abs(u))
-    f = ratio * _soil_force(u, a, lam)[0] + u - target
+    g, slope = _soil_force(u, a, lam)
+    f = ratio * g + u - target
     if f == 0.0:
-        return load * _soil_force(u, a, lam)[0]
-    if f < 0.0:
-        left, right = u, u + step
-    else:
-        left, right = u - step, u
-    while ratio * _soil_force(left, a, lam)[0] + left - target > 0.0:
-        step *= 2.0
-        left -= step
-    while ratio * _soil_force(right, a, lam)[0] + right - target < 0.0:
-        step *= 2.0
-        right += step
-    for _ in range(60):
-        g, slope = _soil_force(u, a, lam)
-        f = ratio * g + u - target
-        if f == 0.0:
-            break
+        return load * g
+    up = f < 0.0  # the far end is the right one (NaN: the left one, as the eager search)
+    u0 = u
+    near = u + step if up else u - step  # the far end lies at or beyond this
+    far_known = False
+    left = u if up else near
+    right = near if up else u
+    for i in range(60):
+        if i > 0:
+            g, slope = _soil_force(u, a, lam)
+            f = ratio * g + u - target
+            if f == 0.0:
+                break
         if f < 0.0:
             left = u
+            far_known = far_known or not up
         else:
             right = u
+            far_known = far_known or up
         u_new = u - f / (ratio * slope + 1.0)
+        short = u_new < near if up else u_new > near  # then inside the far end, wherever it lies
+        if not (far_known or (short and left < u_new < right)):
+            far_known = True
+            far = _bracket_end(u0, step, up, ratio, target, a, lam)
+            if up:
+                right = far
+            else:
+                left = far
         if not (left < u_new < right):
             u_new = 0.5 * (left + right)
         if abs(u_new - u) <= 1e-12 * max(1.0, abs(u)):

@@ -7,6 +7,7 @@ of :mod:`terrain_analysis.sim2real.skid_steer`; the dynamics are :mod:`~terrain_
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import Any
@@ -33,6 +34,10 @@ NUISANCE: Mapping[str, tuple[str, tuple[float, float], float, str]] = {
     "yaw_inertia_scale": ("–", (0.3, 3.0), 0.3, "I_z = config I_z × scale"),
 }
 
+
+#: Replays kept for re-use (the noise-free IMU of one physics): at most this many, and this many bytes.
+_CACHE_ENTRIES = 4096
+_CACHE_BYTES = 256 * 2**20
 
 _CHANNELS = (
     ("yaw_rate", "imu angular_velocity.z", "rad/s"),
@@ -108,7 +113,7 @@ class SkidSteerReplay:
         self.warmup: float = float(warmup)
         self.integration_step = float(integration_step)
         self.notes: list[str] = list(data.notes)
-        self._cache: dict[tuple[Any, ...], FloatArray] = {}
+        self._cache: OrderedDict[tuple[Any, ...], FloatArray] = OrderedDict()
         if channels is None:
             # The roll and pitch gyros carry the sprung mass's motion: compared when the IMU measures
             # them and the vehicle has a suspension (a rigid chassis predicts 0 and a real one shakes).
@@ -240,9 +245,14 @@ class SkidSteerReplay:
             hit = replay_imu(
                 self.replay_vehicle, self.data.t, self.data.omega, physics, integration_step=self.integration_step
             )
-            if len(self._cache) > 256:
-                self._cache.clear()
+            # Least recently used out first, within a memory budget: the fits revisit the same physics (the
+            # nominal refit of each cross-fitted candidate's folds, starts, the stability refits).
+            limit = max(16, min(_CACHE_ENTRIES, _CACHE_BYTES // max(hit.nbytes, 1)))
+            while len(self._cache) >= limit:
+                self._cache.popitem(last=False)
             self._cache[key] = hit
+        else:
+            self._cache.move_to_end(key)
         return hit
 
     def imu(self, effects: Mapping[str, Mapping[str, float]], nuisance: Mapping[str, float]) -> FloatArray:

@@ -54,6 +54,12 @@ One run prints, side by side (``make bench``):
    estimate of ``terrain-estimate`` in a fresh process (warm numba cache), for the new import chain and
    for the previous one (``scipy.stats`` imported first, as ``filters.adaptive`` did before, and the
    Python step).
+   6b. **Replay** (``--only replay``; issue 23's "≥ 50× real time per core" for the quarter car, the LRV and
+   the rover's shared path): ``estimate_bag`` on the shipped quarter-car, LRV and rover bags and on 60 s
+   simulated quarter-car and LRV bags (the shipped bags' worlds), the previous path (every message decoded,
+   checked and handled one at a time, ``bulk=False``) beside the bulk path (the numeric inputs decoded and
+   judged in windows, as arrays; the default), in one run: CPU µs per input message and multiples of real
+   time per core (bag seconds over the process's CPU seconds, median of the repetitions after an untimed run).
 7. **Quarter-car Monte Carlo** (``--only qc_monte_carlo``; issue 23's "the 100-run Monte Carlo with
    every filter in 60 s or less on 2 cores"): the 100 runs of case 1 of ``make reproduce-qc``
    (:func:`terrain_analysis.tools.reproduce_qc.build_plan`: Graneville loam, ISO D, 10 m/s, 12 s; every
@@ -84,7 +90,6 @@ import argparse
 import dataclasses
 import json
 import sys
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -104,7 +109,10 @@ from terrain_analysis.tools.bench_quarter_car import (
     drive_quarter_car,
     format_quarter_car,
 )
-from terrain_analysis.tools.bench_replay import bench_skid_replay, format_skid_replay
+from terrain_analysis.tools.bench_replay import bench_replay, bench_skid_replay, format_replay, format_skid_replay
+from terrain_analysis.tools.bench_sim2real import SIM2REAL_CASES, bench_diagnosis_scaling, bench_sim2real
+from terrain_analysis.tools.bench_sim2real import format_diagnosis_scaling as _format_diagnosis_scaling
+from terrain_analysis.tools.bench_sim2real import format_sim2real as _format_sim2real
 from terrain_analysis.tools.bench_vehicles import (
     ROVER_ROW_LABELS,
     SKID_ROW_LABELS,
@@ -145,17 +153,6 @@ ROW_LABELS: tuple[str, ...] = (
 )
 
 
-#: Sim-to-real diagnosis cases: (vehicle, simulator overrides of the withheld effect). Issue 6: a
-#: 60 s bag must be diagnosed in under a minute on 2 cores.
-SIM2REAL_CASES: tuple[tuple[str, dict[str, Any]], ...] = (
-    ("quarter_car", {"effects.tire_contact_length": 0.2}),
-    ("lrv", {"effects.sprung_mass_change": 0.2, "scenario.soils": ["lunar_regolith"], "scenario.speed": 2.0}),
-    ("skid_steer", {"effects.gyro_bias": 0.01}),
-    ("rover", {"effects.load_cell_bias": [0.0, 0.0, 3.0]}),
-)
-SIM2REAL_SECONDS = 60.0
-
-
 def run_bench(cfg: BenchConfig, bags_dir: Path = BAGS_DIR) -> dict[str, Any]:
     """Every figure of the report, as a JSON-able dict."""
     out: dict[str, Any] = {"machine": machine_info(), "config": dataclasses.asdict(cfg)}
@@ -175,47 +172,6 @@ def run_bench(cfg: BenchConfig, bags_dir: Path = BAGS_DIR) -> dict[str, Any]:
     out["rover"] = bench_rover(cfg)
     out["sim2real"] = bench_sim2real(cfg)
     return out
-
-
-def bench_sim2real(cfg: BenchConfig) -> list[dict[str, Any]]:
-    """Wall and CPU time of ``diagnose()`` on a simulated bag with one withheld effect, per vehicle."""
-    import tempfile
-
-    from terrain_analysis.sim2real.diagnose import diagnose, supported_vehicles
-    from vehicle_sim.tools.simulate import record
-
-    full = cfg.drive_s >= 10.0
-    duration = SIM2REAL_SECONDS if full else 6.0
-    cases = SIM2REAL_CASES if full else SIM2REAL_CASES[:1]  # --quick: one short quarter-car bag
-    rows: list[dict[str, Any]] = []
-    with tempfile.TemporaryDirectory(prefix="bench_sim2real_") as tmp:
-        for vehicle, overrides in cases:
-            if vehicle not in supported_vehicles():
-                rows.append({"vehicle": vehicle, "skipped": "no replay model installed"})
-                continue
-            bag = Path(tmp) / vehicle
-            try:
-                record(vehicle, duration, bag, overrides={"seed": cfg.seed, **overrides})
-            except Exception as exc:  # a bench row, not a crash: say why
-                rows.append({"vehicle": vehicle, "skipped": f"could not simulate: {exc}"})
-                continue
-            wall0, cpu0 = time.perf_counter(), time.process_time()
-            result = diagnose(bag, vehicle)
-            wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-            a = result.attribution
-            rows.append(
-                {
-                    "vehicle": vehicle,
-                    "bag_s": duration,
-                    "effect": ", ".join(f"{k}={v}" for k, v in overrides.items() if k.startswith("effects.")),
-                    "wall_s": wall,
-                    "cpu_s": cpu,
-                    "candidates": len(a.ranking),
-                    "pairs": len(a.pairs),
-                    "verdict": a.verdict,
-                }
-            )
-    return rows
 
 
 def format_report(figures: dict[str, Any]) -> str:
@@ -239,23 +195,6 @@ def format_report(figures: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _format_sim2real(rows: list[dict[str, Any]]) -> list[str]:
-    """The sim-to-real section: time to diagnose one bag (issue 6 target: a 60 s bag in < 60 s)."""
-    lines = [
-        "Sim-to-real diagnosis (terrain-sim2real: where + every catalogue effect fitted/scored + pairs), one bag",
-        f"  {'vehicle':<14}{'bag s':>7}{'wall s':>9}{'CPU s':>8}{'effects':>9}{'pairs':>7}  withheld effect → verdict",
-    ]
-    for r in rows:
-        if "skipped" in r:
-            lines.append(f"  {r['vehicle']:<14}  skipped: {r['skipped']}")
-            continue
-        lines.append(
-            f"  {r['vehicle']:<14}{r['bag_s']:>7.0f}{r['wall_s']:>9.1f}{r['cpu_s']:>8.1f}{r['candidates']:>9d}"
-            f"{r['pairs']:>7d}  {r['effect']} → {r['verdict'][:70]}"
-        )
-    return lines
-
-
 @cli_main("make bench")
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
@@ -271,18 +210,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--bags", metavar="DIR", default=str(BAGS_DIR), help="directory of the recorded bags")
     parser.add_argument(
         "--only",
-        choices=("skid_replay", "qc_monte_carlo"),
+        choices=("skid_replay", "replay", "qc_monte_carlo", "diagnosis_scaling"),
         help=(
             "run one section only: skid_replay = the skid-steer bags, compiled step against the previous one; "
+            "replay = the quarter-car, LRV and rover bags, bulk decoding and checks against one message at a time; "
             "qc_monte_carlo = the 100-run quarter-car Monte Carlo (reproduce-qc case 1, every filter) on 2 "
-            "processes, the numpy EKF against the compiled one"
+            "processes, the numpy EKF against the compiled one; diagnosis_scaling = the sim-to-real diagnosis of "
+            "15, 30 and 60 s bags per vehicle (CPU per bag second, optimiser evaluations, ratio to linear)"
         ),
     )
     args = parser.parse_args(argv)
     cfg = BenchConfig.quick() if args.quick else BenchConfig()
     sections: dict[str, tuple[Callable[[], dict[str, Any]], Callable[[dict[str, Any]], str]]] = {
         "skid_replay": (lambda: bench_skid_replay(cfg, Path(args.bags)), format_skid_replay),
+        "replay": (lambda: bench_replay(cfg, Path(args.bags)), format_replay),
         "qc_monte_carlo": (lambda: bench_qc_monte_carlo(cfg), format_qc_monte_carlo),
+        "diagnosis_scaling": (
+            lambda: {"rows": bench_diagnosis_scaling(cfg)},
+            lambda f: "\n".join(_format_diagnosis_scaling(f["rows"])),
+        ),
     }
     if args.only is not None:
         run, fmt = sections[args.only]
