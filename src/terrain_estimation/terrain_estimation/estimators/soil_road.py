@@ -193,10 +193,19 @@ def _fit_weights(pt: Array, t: float, half_w: float, degree: int) -> tuple[int, 
     s = (pt[lo:hi] - t) / half_w  # in [−1, 1]: a well-conditioned Vandermonde matrix
     if s[0] > -0.5 or s[-1] < 0.5:
         return None
-    v = s[:, None] ** np.arange(degree + 1)
+    v = s[:, None] ** _powers(degree)
     # Rows 0 and 1 of the pseudo-inverse (VᵀV)⁻¹Vᵀ.
     rows = np.linalg.solve(v.T @ v, v.T)
     return lo, rows[0], rows[1] / half_w
+
+
+@lru_cache(maxsize=8)
+def _powers(degree: int) -> Array:
+    """``[0, 1, …, degree]`` as floats (read-only): the exponents of a fit's Vandermonde matrix, which numpy's
+    power takes as float64 from an integer ``arange`` too (the same values)."""
+    powers = np.arange(degree + 1, dtype=float)
+    powers.setflags(write=False)
+    return powers
 
 
 @lru_cache(maxsize=32)

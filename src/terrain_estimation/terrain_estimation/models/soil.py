@@ -205,13 +205,45 @@ def classify_soil(
     if not (0.0 <= unknown_weight < 1.0):
         raise ValueError("unknown_weight must be in [0, 1)")
     n = len(table)
-    if not (np.isfinite(k_s) and k_s > 0.0):
+    if not (math.isfinite(k_s) if type(k_s) is float else np.isfinite(k_s)) or not k_s > 0.0:
         return SoilClassification(table[0].name, 0.0, (0.0,) * n, 1.0)
     var_rel = float(k_s_variance) / (k_s * k_s)
-    if not np.isfinite(var_rel) or var_rel < 0.0:
+    if not math.isfinite(var_rel) or var_rel < 0.0:
         var_rel = 1e6
     s2 = var_rel + class_log_std**2
     ell = math.log(k_s)
+    if n >= _SUMMED_IN_ORDER or not s2 > 0.0:
+        return _classify_arrays(ell, s2, table, unknown_weight, log_ks_range)
+    # The numpy form's operations on floats, in its order (_classify_arrays; the classifier runs on every
+    # filter step, where numpy's per-call cost on seven numbers was most of it): the same values, bit for bit.
+    norm = 0.5 * math.log(2.0 * math.pi * s2)
+    prior = math.log((1.0 - unknown_weight) / n)
+    log_post = [-0.5 * ((ell - c) * (ell - c)) / s2 - norm + prior for c in _log_centre_list(table)]
+    if unknown_weight > 0.0:
+        width = math.log(log_ks_range[1]) - math.log(log_ks_range[0])
+        log_post.append(math.log(unknown_weight) - math.log(width))
+    top = max(log_post)
+    post = np.exp([v - top for v in log_post]).tolist()  # numpy's exp: libm's may differ in the last bit
+    total = post[0]
+    for p in post[1:]:  # numpy's sum of fewer than 8 numbers: in order
+        total += p
+    named = [p / total for p in post[:n]]
+    confidence = max(named)
+    best = named.index(confidence)  # the first maximum, as argmax
+    p_unknown = post[n] / total if unknown_weight > 0.0 else 0.0
+    return SoilClassification(table[best].name, confidence, tuple(named), p_unknown)
+
+
+#: Tables of fewer classes are classified on floats: at most 7 posterior terms with the unknown one, which numpy
+#: sums one after the other (its pairwise sum unrolls from 8 terms).
+_SUMMED_IN_ORDER = 7
+
+
+def _classify_arrays(
+    ell: float, s2: float, table: tuple[SoilClass, ...], unknown_weight: float, log_ks_range: tuple[float, float]
+) -> SoilClassification:
+    """:func:`classify_soil` on numpy arrays, from ``ℓ = ln k_s`` and ``s² = σ_ℓ² + σ_c²`` (large tables)."""
+    n = len(table)
     log_post = np.empty(n + 1 if unknown_weight > 0.0 else n)
     log_post[:n] = -0.5 * (ell - _log_centres(tuple(table))) ** 2 / s2 - 0.5 * math.log(2.0 * math.pi * s2)
     log_post[:n] += math.log((1.0 - unknown_weight) / n)
@@ -225,6 +257,22 @@ def classify_soil(
     best = int(named.argmax())
     p_unknown = float(post[n]) if unknown_weight > 0.0 else 0.0
     return SoilClassification(table[best].name, float(named[best]), tuple(named.tolist()), p_unknown)
+
+
+_centre_lists: dict[int, tuple[tuple[SoilClass, ...], list[float]]] = {}
+
+
+def _log_centre_list(table: tuple[SoilClass, ...]) -> list[float]:
+    """:func:`_log_centres` as floats, looked up by the table's identity (hashing a table of dataclasses on every
+    step cost as much as the classification)."""
+    hit = _centre_lists.get(id(table))
+    if hit is not None and hit[0] is table:
+        return hit[1]
+    centres = _log_centres(tuple(table)).tolist()
+    if len(_centre_lists) >= 16:
+        _centre_lists.clear()
+    _centre_lists[id(table)] = (table, centres)
+    return centres
 
 
 @functools.lru_cache(maxsize=16)
