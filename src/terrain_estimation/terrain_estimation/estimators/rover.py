@@ -132,6 +132,8 @@ re-initialise from the measurements as without the monitor.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -145,6 +147,7 @@ from terrain_estimation.estimators.rover_diagnostics import (
 from terrain_estimation.estimators.rover_noise import (
     NoiseBlock,
     RepeatPassError,
+    block_part,
     considered_variances,
     coupling_variance,
     is_settled,
@@ -152,6 +155,7 @@ from terrain_estimation.estimators.rover_noise import (
     process_block_part,
     rotated_force_noise_factor,
     smoothed_random_walk_variance,
+    statistical_linearisation,
 )
 from terrain_estimation.estimators.rover_outputs import (
     RoverBodyEstimate,
@@ -168,6 +172,7 @@ from terrain_estimation.estimators.rover_response import (
 from terrain_estimation.estimators.rover_windows import SensorWindows, WindowMeans
 from terrain_estimation.filters.base import Array, GaussianState, UpdateInfo
 from terrain_estimation.filters.faults import DivergenceCheck, DivergenceMonitor
+from terrain_estimation.filters.ukf import MeasurementMoments, UnscentedKalmanFilter
 from terrain_estimation.models.rover import WHEELS, carrier_angles, wheel_centres
 from terrain_estimation.models.rover_estimators import (
     GeneralEstimatorModel,
@@ -560,14 +565,10 @@ class RoverTerrainEstimator(SensorWindows):
         r1 = r1.copy()
         r1[8:11] *= s1[1]
 
-        post1, info1 = self.filter.update(
-            prior1, y1, self.general_model, None, measurement_noise_sqrt=np.diag(np.sqrt(r1))
-        )
+        post1, info1, moments1 = self._update(prior1, y1, self.general_model, None, np.diag(np.sqrt(r1)))
         next1 = s1
         if cfg.noise_matching.enabled and np.isfinite(info1.nis):
-            mm = self._moments.measurement_moments(
-                prior1, self.general_model, None, measurement_noise_sqrt=np.diag(np.sqrt(r1))
-            )
+            mm = moments1()
             blocks = [
                 NoiseBlock("Q wheel rates", process_block_part(mm.P_xz, prior1.P, _block_cov(L1, _RATE_IDX))),
                 NoiseBlock("R slips", np.diag(np.where(np.arange(11) >= 8, r1, 0.0)), measurement=True),
@@ -621,11 +622,12 @@ class RoverTerrainEstimator(SensorWindows):
         )
         prior2 = self.filter.predict(self._wheel_force, self.wheel_force_model, None, dt, process_noise_sqrt=L2)
         R2 = np.diag(np.sqrt(r2))
-        post2, info2 = self.filter.update(prior2, y2, self.wheel_force_model, eps, measurement_noise_sqrt=R2)
+        post2, info2, moments2 = self._update(prior2, y2, self.wheel_force_model, eps, R2)
         if cfg.noise_matching.enabled and np.isfinite(info2.nis):
-            mm2 = self._moments.measurement_moments(prior2, self.wheel_force_model, eps, measurement_noise_sqrt=R2)
+            mm2 = moments2()
+            Ht2 = statistical_linearisation(mm2.P_xz, prior2.P)  # the same for every block
             blocks2 = [
-                NoiseBlock(f"Q {name} {wheel}", process_block_part(mm2.P_xz, prior2.P, _block_cov(L2, [3 * g + j])))
+                NoiseBlock(f"Q {name} {wheel}", block_part(Ht2, _block_cov(L2, [3 * g + j])))
                 for g, name in ((1, "W"), (2, "DP"))
                 for j, wheel in enumerate(WHEELS)
             ]
@@ -634,6 +636,25 @@ class RoverTerrainEstimator(SensorWindows):
             # pull γ when the W, DP random walks close (issue 21: before, they were held ≥ their base).
             self._next_scales = (next1, matched)
         return post1, info1, post2, info2, vertical
+
+    def _update(
+        self, prior: GaussianState, z: Array, model: Any, u: Any, noise_sqrt: Array
+    ) -> tuple[GaussianState, UpdateInfo, Callable[[], MeasurementMoments]]:
+        """The step filter's update, and the noise matching's moments at ``prior`` (plain UKF, ``self._moments``).
+
+        When the step's filter is that very UKF (not wrapped: the default), the moments are those its update
+        was made with (the same points and numbers, drawn once); otherwise they are drawn on demand.
+        """
+        flt = self.filter
+        if type(flt) is UnscentedKalmanFilter and flt == self._moments:
+            post, info, mm = flt.update_with_moments(prior, z, model, u, measurement_noise_sqrt=noise_sqrt)
+            return post, info, lambda: mm
+        post, info = flt.update(prior, z, model, u, measurement_noise_sqrt=noise_sqrt)
+        return (
+            post,
+            info,
+            lambda: self._moments.measurement_moments(prior, model, u, measurement_noise_sqrt=noise_sqrt),
+        )
 
     def _general_measurement(self, m: WindowMeans, *, pitch_rate: float, bogie_rate: float) -> Array:
         return general_measurement(

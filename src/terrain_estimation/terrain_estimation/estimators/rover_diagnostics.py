@@ -122,6 +122,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from terrain_estimation.filters.base import Array
+from terrain_estimation.filters.sigma_points import solve
 
 __all__ = ["BALANCE_DOF", "FaultCheck", "ForceBalance", "consistency_channels", "consistency_dof", "subset_nis"]
 
@@ -207,8 +208,8 @@ class ForceBalance:
         S = P + R
         nu = np.asarray(r, dtype=float) - self._b
         try:
-            Sinv_nu = np.linalg.solve(S, nu)
-            K = np.linalg.solve(S, P).T  # P S⁻¹ (S, P symmetric)
+            Sinv_nu = solve(S, nu)
+            K = solve(S, P).T  # P S⁻¹ (S, P symmetric)
         except np.linalg.LinAlgError:
             return math.nan, None, self._P
         nis = float(nu @ Sinv_nu)
@@ -225,7 +226,7 @@ def subset_nis(innovation: ArrayLike, innovation_cov: ArrayLike, channels: Seque
     nu = np.asarray(innovation, dtype=float)[list(channels)]
     S = np.asarray(innovation_cov, dtype=float)[np.ix_(list(channels), list(channels))]
     try:
-        value = float(nu @ np.linalg.solve(S, nu))
+        value = float(nu @ solve(S, nu))
     except np.linalg.LinAlgError:
         return math.nan
     return value if math.isfinite(value) else math.nan

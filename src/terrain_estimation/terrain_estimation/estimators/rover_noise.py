@@ -181,7 +181,7 @@ from numpy.typing import ArrayLike
 from terrain_estimation.filters.adaptive import whiten
 from terrain_estimation.filters.base import Array
 from terrain_estimation.filters.noise_adaptation import huber_clip
-from terrain_estimation.filters.sigma_points import cholesky, solve_lower
+from terrain_estimation.filters.sigma_points import cholesky, solve, solve_lower
 
 __all__ = [
     "ContactAngleBias",
@@ -193,7 +193,9 @@ __all__ = [
     "smoothed_random_walk_variance",
     "match_noise_scales",
     "measurement_blocks",
+    "block_part",
     "process_block_part",
+    "statistical_linearisation",
     "rotated_force_noise_factor",
     "coupling_variance",
 ]
@@ -257,11 +259,20 @@ def measurement_blocks(r_diag: Array, prefix: str = "R") -> list[NoiseBlock]:
 
 def process_block_part(P_xz: Array, P_prior: Array, Q_block: Array) -> Array:
     """``H̃ Q_g H̃ᵀ`` with ``H̃ = P_xzᵀ P̄⁻¹`` (statistical linearisation of h), (p, p)."""
+    return block_part(statistical_linearisation(P_xz, P_prior), Q_block)
+
+
+def statistical_linearisation(P_xz: Array, P_prior: Array) -> Array:
+    """``H̃ᵀ = P̄⁻¹ P_xz`` of :func:`process_block_part`, (n, p): one per update, shared by its blocks."""
     try:
         L = cholesky(P_prior)
-        Ht = solve_lower(L, solve_lower(L, P_xz), transpose=True)  # P̄⁻¹ P_xz
+        return solve_lower(L, solve_lower(L, P_xz), transpose=True)  # P̄⁻¹ P_xz
     except np.linalg.LinAlgError:
-        Ht = np.asarray(np.linalg.lstsq(P_prior, P_xz, rcond=None)[0], dtype=np.float64)
+        return np.asarray(np.linalg.lstsq(P_prior, P_xz, rcond=None)[0], dtype=np.float64)
+
+
+def block_part(Ht: Array, Q_block: Array) -> Array:
+    """``H̃ Q_g H̃ᵀ`` of :func:`process_block_part` from ``H̃ᵀ`` (:func:`statistical_linearisation`)."""
     return np.asarray(Ht.T @ Q_block @ Ht, dtype=float)
 
 
@@ -288,7 +299,7 @@ def match_noise_scales(
     h = X @ ((g2 / kappa) * np.outer(w, w).ravel()) - X[:, :: p + 1].sum(axis=1)
     G.flat[:: len(blocks) + 1] += config.ridge
     try:
-        step = np.linalg.solve(G, h)
+        step = solve(G, h)
     except np.linalg.LinAlgError:
         return s
     if not np.isfinite(step).all():

@@ -66,32 +66,40 @@ def wheel_triple(where: str, name: str, value: Any) -> Array:
 
 @dataclass
 class _Window:
-    """Sums of one window's samples (mutable, private)."""
+    """Sums of one window's samples (mutable, private).
+
+    Plain floats, added one sample at a time: the same additions as numpy's on float64 arrays, without an
+    array operation per sample (every message adds to a window; :class:`WindowMeans` makes the arrays).
+    """
 
     index: int
     imu_n: int = 0
-    specific_force: Array = field(default_factory=lambda: np.zeros(2))
+    force_x_sum: float = 0.0
+    force_z_sum: float = 0.0
     pitch_rate: float = 0.0
     joint_n: int = 0
     bogie_sum: float = 0.0
-    torque_sum: Array = field(default_factory=lambda: np.zeros(3))
+    torque_sum: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     joint_first: tuple[float, float, Array] | None = None  # (t, bogie, wheel angles)
     joint_last: tuple[float, float, Array] | None = None
     speed_n: int = 0
     speed_sum: float = 0.0
-    cell_n: Array = field(default_factory=lambda: np.zeros(3, dtype=int))
-    axial_sum: Array = field(default_factory=lambda: np.zeros(3))
-    perpendicular_sum: Array = field(default_factory=lambda: np.zeros(3))
+    cell_n: list[int] = field(default_factory=lambda: [0, 0, 0])
+    axial_sum: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    perpendicular_sum: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
 
     def add_imu(self, fx: float, fz: float, rate: float) -> None:
         self.imu_n += 1
-        self.specific_force += (fx, fz)
+        self.force_x_sum += fx
+        self.force_z_sum += fz
         self.pitch_rate += rate
 
     def add_joints(self, t: float, bogie: float, angles: Array, torques: Array) -> None:
         self.joint_n += 1
         self.bogie_sum += bogie
-        self.torque_sum += torques
+        total = self.torque_sum
+        for j, torque in enumerate(torques.tolist()):
+            total[j] += torque
         sample = (t, bogie, angles)
         if self.joint_first is None:
             self.joint_first = sample
@@ -114,14 +122,14 @@ class WindowMeans:
         self.imu_n = w.imu_n
         self.joint_n = w.joint_n
         self.speed_n = w.speed_n
-        self.cell_n = w.cell_n.astype(float)
-        self.specific_force = w.specific_force / w.imu_n
+        self.cell_n = np.array(w.cell_n, dtype=float)
+        self.specific_force = np.array([w.force_x_sum, w.force_z_sum]) / w.imu_n
         self.pitch_rate = w.pitch_rate / w.imu_n
         self.bogie_angle = w.bogie_sum / w.joint_n
-        self.wheel_torque = w.torque_sum / w.joint_n
+        self.wheel_torque = np.array(w.torque_sum) / w.joint_n
         self.forward_speed = w.speed_sum / w.speed_n
-        self.axial_force = w.axial_sum / self.cell_n
-        self.perpendicular_force = w.perpendicular_sum / self.cell_n
+        self.axial_force = np.array(w.axial_sum) / self.cell_n
+        self.perpendicular_force = np.array(w.perpendicular_sum) / self.cell_n
         self.wheel_rates = wheel_rates
         self.bogie_rate = bogie_rate
         self.joint_dt = joint_dt
@@ -302,7 +310,7 @@ class SensorWindows:
         if window.joint_last is not None:
             self._last_joint = window.joint_last
         need = self.config.min_window_samples
-        counts = [window.imu_n, window.joint_n, window.speed_n, *window.cell_n.tolist()]
+        counts = [window.imu_n, window.joint_n, window.speed_n, *window.cell_n]
         rates = self._joint_rates(window, previous_joint)
         if min(counts) < need or rates is None:
             self._c["incomplete_windows"] += 1

@@ -306,6 +306,41 @@ def _raise_not_positive_definite(err: str, flag: int) -> None:
     raise np.linalg.LinAlgError("Matrix is not positive definite")
 
 
+def _raise_singular(err: str, flag: int) -> None:
+    raise np.linalg.LinAlgError("Singular matrix")
+
+
+try:
+    _SOLVE1: Any = _umath_linalg.solve1
+    _SOLVE: Any = _umath_linalg.solve
+except (NameError, AttributeError):  # pragma: no cover - another numpy layout: the public function
+    _SOLVE1 = _SOLVE = None
+
+
+def solve(a: Array, b: Array) -> Array:
+    """``np.linalg.solve(a, b)``, bit for bit, without the wrapper's argument handling for float64 arrays.
+
+    The same gufunc (LAPACK ``gesv``) under the same floating-point error state (a singular ``a`` raises
+    ``numpy.linalg.LinAlgError``), as :func:`cholesky` does for its factor: the rover's estimator solves
+    about a dozen systems of 3 to 11 unknowns per step, where the wrapper's type and shape dispatch cost
+    more than the solve. Anything but float64 ndarrays with a square ``a`` goes through
+    ``np.linalg.solve`` itself.
+    """
+    if (
+        _SOLVE1 is None
+        or type(a) is not np.ndarray
+        or type(b) is not np.ndarray
+        or a.dtype != np.float64
+        or b.dtype != np.float64
+        or a.ndim < 2
+        or a.shape[-1] != a.shape[-2]
+    ):
+        return np.asarray(np.linalg.solve(a, b))
+    gufunc = _SOLVE1 if b.ndim == 1 else _SOLVE
+    with np.errstate(call=_raise_singular, invalid="call", over="ignore", divide="ignore", under="ignore"):
+        return np.asarray(gufunc(a, b, signature="dd->d"))
+
+
 def cholesky(P: Array) -> Array:
     """``np.linalg.cholesky(P)``, bit for bit, without the wrapper's argument handling for a float64 array.
 

@@ -243,12 +243,29 @@ class SigmaPointKalmanFilter(GatedFilter, ABC):
             ``(posterior, info)``; the prior itself with ``info.accepted=False``
             when the gate rejects.
         """
+        posterior, info, _ = self.update_with_moments(state, z, model, u, measurement_noise_sqrt=measurement_noise_sqrt)
+        return posterior, info
+
+    def update_with_moments(
+        self,
+        state: GaussianState,
+        z: Any,
+        model: StateSpaceModel,
+        u: Any = None,
+        *,
+        measurement_noise_sqrt: Any = None,
+    ) -> tuple[GaussianState, UpdateInfo, MeasurementMoments]:
+        """:meth:`update` and the moments it was made with (:meth:`measurement_moments` at ``state``).
+
+        For a caller that needs both (the rover's noise matching): the points are drawn and ``h`` is
+        evaluated once; the numbers are those of the two calls.
+        """
         zv = check_measurement(z, model.measurement_dim)
         mm = self.measurement_moments(state, model, u, measurement_noise_sqrt=measurement_noise_sqrt)
         nu = zv - mm.z_hat
         post, nis = self._gain_update(state.x, state.P, nu, mm.P_zz, mm.P_xz)
         info = UpdateInfo(innovation=nu, innovation_cov=mm.P_zz, nis=nis, accepted=post is not None)
-        return (state if post is None else GaussianState(x=post[0], P=post[1])), info
+        return (state if post is None else GaussianState(x=post[0], P=post[1])), info, mm
 
     def _gain_update(
         self, x: Any, P: Any, nu: Array, P_zz: Array, P_xz: Array

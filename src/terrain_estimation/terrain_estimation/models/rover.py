@@ -74,6 +74,13 @@ from typing import Final, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from terrain_estimation.models.rover_contact import contact_angle_from_velocity as contact_angle_from_velocity
+from terrain_estimation.models.rover_contact import load_cell_forces as load_cell_forces
+from terrain_estimation.models.rover_contact import slip_from_motion as slip_from_motion
+from terrain_estimation.models.rover_contact import slip_from_motion_scalar as slip_from_motion_scalar
+from terrain_estimation.models.rover_contact import terrain_contact_force_world as terrain_contact_force_world
+from terrain_estimation.models.rover_contact import wheel_forces_from_load_cell as wheel_forces_from_load_cell
+
 Array = NDArray[np.float64]
 
 __all__ = [
@@ -87,6 +94,7 @@ __all__ = [
     "carrier_angles",
     "contact_angle_from_velocity",
     "coriolis_forces",
+    "dynamics_gravity",
     "dynamics_terms",
     "generalised_wheel_forces",
     "gravity_gradient",
@@ -239,16 +247,29 @@ class RoverParams:
 # ---------------------------------------------------------------------------
 
 
-def _rotate(angle: float, vector: tuple[float, float]) -> Array:
+_Vec = tuple[float, float]
+
+
+def _rotate(angle: float, vector: _Vec) -> _Vec:
     """World (x, z) of a link-frame vector for a link at ``angle`` about +y (nose-down positive)."""
     c, s = math.cos(angle), math.sin(angle)
     bx, bz = vector
-    return np.array([bx * c + bz * s, -bx * s + bz * c])
+    return bx * c + bz * s, -bx * s + bz * c
 
 
-def _perp(r: Array) -> Array:
-    """d(R(φ) b)/dφ = (r_z, −r_x) for r = R(φ) b: the velocity of a point at r for a unit rate about +y."""
-    return np.array([r[1], -r[0]])
+def _sum(vectors: list[_Vec]) -> _Vec:
+    """``sum(vectors, np.zeros(2))`` in floats: the same additions, from 0, in order."""
+    x = z = 0.0
+    for vx, vz in vectors:
+        x += vx
+        z += vz
+    return x, z
+
+
+def _perp_sum(vectors: list[_Vec]) -> _Vec:
+    """Σ ⊥r over ``vectors`` from 0 (:func:`_sum`), ⊥(x, z) = (z, −x) = d(R(φ) b)/dφ for r = R(φ) b: the
+    velocity of a point at r for a unit rate about +y."""
+    return _sum([(rz, -rx) for rx, rz in vectors])
 
 
 def _check_g(g: ArrayLike, name: str = "g") -> Array:
@@ -259,17 +280,19 @@ def _check_g(g: ArrayLike, name: str = "g") -> Array:
 
 
 class _Chain:
-    """World vectors of the chain's segments at one configuration.
+    """World vectors of the chain's segments at one configuration, as (x, z) floats.
 
     Segments: O → bogie joint (body), O → front wheel (body), bogie joint →
     bogie CM, → rear wheel, → middle wheel (bogie). A mass point is O plus a
     sum of segments; each segment turns with its link's absolute angle
-    (θ for the body, θ + q1 for the bogie).
+    (θ for the body, θ + q1 for the bogie). Plain floats, not 2-vectors: every
+    estimator step evaluates the chain at a dozen configurations, and the
+    additions are those numpy made on the vectors (from 0, in order).
     """
 
     def __init__(self, params: RoverParams, g: Array) -> None:
         pitch, bogie = g[_PITCH], g[_BOGIE]
-        self.origin = g[[_X0, _Z0]]
+        self.origin: _Vec = (float(g[_X0]), float(g[_Z0]))
         self.joint = _rotate(pitch, params.bogie_joint_offset)
         self.front = _rotate(pitch, params.front_wheel_offset)
         carrier = pitch + bogie
@@ -278,7 +301,7 @@ class _Chain:
         self.rear = _rotate(carrier, rear)
         self.middle = _rotate(carrier, middle)
 
-    def points(self) -> list[tuple[list[Array], list[Array]]]:
+    def points(self) -> list[tuple[list[_Vec], list[_Vec]]]:
         """(body segments, bogie segments) of body, bogie CM, rear, middle, front."""
         return [
             ([], []),
@@ -291,31 +314,45 @@ class _Chain:
 
 def _point_jacobians(chain: _Chain) -> Array:
     """d(x, z)/dg of the five mass points (body, bogie, rear, middle, front), shape (5, 2, 7)."""
-    jac = np.zeros((_N_POINTS, 2, N_COORDINATES))
-    for k, (body_segments, bogie_segments) in enumerate(chain.points()):
-        jac[k, 0, _X0] = 1.0
-        jac[k, 1, _Z0] = 1.0
-        bogie_rate = sum((_perp(r) for r in bogie_segments), np.zeros(2))
-        jac[k, :, _PITCH] = sum((_perp(r) for r in body_segments), np.zeros(2)) + bogie_rate
-        jac[k, :, _BOGIE] = bogie_rate
-    return jac
+    rows = []
+    for body_segments, bogie_segments in chain.points():
+        qx, qz = _perp_sum(bogie_segments)
+        px, pz = _perp_sum(body_segments)
+        row_x = [0.0] * N_COORDINATES
+        row_z = [0.0] * N_COORDINATES
+        row_x[_X0] = 1.0
+        row_z[_Z0] = 1.0
+        row_x[_PITCH], row_z[_PITCH] = px + qx, pz + qz
+        row_x[_BOGIE], row_z[_BOGIE] = qx, qz
+        rows.append([row_x, row_z])
+    return np.array(rows)
 
 
 def _point_bias(chain: _Chain, g_dot: Array) -> Array:
     """J̇ ġ of the five mass points: −Σ r_k φ̇_k² (centripetal), shape (5, 2)."""
     body_rate = g_dot[_PITCH]
     bogie_rate = g_dot[_PITCH] + g_dot[_BOGIE]
-    bias = np.zeros((_N_POINTS, 2))
-    for k, (body_segments, bogie_segments) in enumerate(chain.points()):
-        for r in body_segments:
-            bias[k] -= r * body_rate**2
-        for r in bogie_segments:
-            bias[k] -= r * bogie_rate**2
-    return bias
+    bias = []
+    for body_segments, bogie_segments in chain.points():
+        x = z = 0.0
+        for rx, rz in body_segments:
+            x -= rx * body_rate**2
+            z -= rz * body_rate**2
+        for rx, rz in bogie_segments:
+            x -= rx * bogie_rate**2
+            z -= rz * bogie_rate**2
+        bias.append((x, z))
+    return np.array(bias, dtype=float)
 
 
 def _point_positions(chain: _Chain) -> Array:
-    return np.array([chain.origin + sum(b, np.zeros(2)) + sum(c, np.zeros(2)) for b, c in chain.points()])
+    ox, oz = chain.origin
+    rows = []
+    for body_segments, bogie_segments in chain.points():
+        bx, bz = _sum(body_segments)
+        cx, cz = _sum(bogie_segments)
+        rows.append(((ox + bx) + cx, (oz + bz) + cz))
+    return np.array(rows)
 
 
 def _angular_jacobians() -> Array:
@@ -350,7 +387,8 @@ def mass_point_positions(params: RoverParams, g: ArrayLike) -> Array:
 def bogie_joint_position(params: RoverParams, g: ArrayLike) -> Array:
     """World (x, z) of the bogie joint (m), shape (2,)."""
     chain = _Chain(params, _check_g(g))
-    return chain.origin + chain.joint
+    (ox, oz), (jx, jz) = chain.origin, chain.joint
+    return np.array([ox + jx, oz + jz])
 
 
 def wheel_centres(params: RoverParams, g: ArrayLike) -> Array:
@@ -499,24 +537,7 @@ def dynamics_terms(params: RoverParams, g: ArrayLike, g_dot: ArrayLike) -> Dynam
     """
     g_ = _check_g(g)
     v = _check_g(g_dot, "g_dot")
-    pitch, carrier = float(g_[_PITCH]), float(g_[_PITCH] + g_[_BOGIE])
-    c0, s0 = math.cos(pitch), math.sin(pitch)
-    c1, s1 = math.cos(carrier), math.sin(carrier)
-
-    def rot(vector: tuple[float, float], c: float, s: float) -> tuple[float, float]:
-        return vector[0] * c + vector[1] * s, -vector[0] * s + vector[1] * c
-
-    lx, lz = rot(params.bogie_joint_offset, c0, s0)
-    fx, fz = rot(params.front_wheel_offset, c0, s0)
-    rear, middle = params.bogie_wheel_offsets
-    bogie_vectors = (
-        rot(params.bogie_cm_offset, c1, s1),
-        rot(rear, c1, s1),
-        rot(middle, c1, s1),
-    )
-    # Mass points: body, bogie CM, rear, middle, front.
-    P = [(0.0, 0.0)] + [(lx + bx, lz + bz) for bx, bz in bogie_vectors] + [(fx, fz)]
-    B = [(0.0, 0.0), *bogie_vectors, (0.0, 0.0)]
+    P, B = _mass_point_vectors(params, g_)
     m = (params.body_mass, params.bogie_mass, params.wheel_mass, params.wheel_mass, params.wheel_mass)
     rate0 = float(v[_PITCH]) ** 2
     rate1 = float(v[_PITCH] + v[_BOGIE]) ** 2
@@ -564,6 +585,44 @@ def dynamics_terms(params: RoverParams, g: ArrayLike, g_dot: ArrayLike) -> Dynam
     x0, z0 = float(g_[_X0]), float(g_[_Z0])
     centres = np.array([[x0 + px, z0 + pz] for px, pz in P[2:]])
     return DynamicsTerms(np.array(Hl), coriolis, gravity, centres, np.array(rows), np.array(bias[2:]))
+
+
+def _mass_point_vectors(params: RoverParams, g: Array) -> tuple[list[tuple[float, float]], list[tuple[float, float]]]:
+    """(P_k, B_k) of :func:`dynamics_terms` for the five mass points (body, bogie CM, rear, middle, front)."""
+    pitch, carrier = float(g[_PITCH]), float(g[_PITCH] + g[_BOGIE])
+    c0, s0 = math.cos(pitch), math.sin(pitch)
+    c1, s1 = math.cos(carrier), math.sin(carrier)
+
+    def rot(vector: tuple[float, float], c: float, s: float) -> tuple[float, float]:
+        return vector[0] * c + vector[1] * s, -vector[0] * s + vector[1] * c
+
+    lx, lz = rot(params.bogie_joint_offset, c0, s0)
+    fx, fz = rot(params.front_wheel_offset, c0, s0)
+    rear, middle = params.bogie_wheel_offsets
+    bogie_vectors = (
+        rot(params.bogie_cm_offset, c1, s1),
+        rot(rear, c1, s1),
+        rot(middle, c1, s1),
+    )
+    P = [(0.0, 0.0)] + [(lx + bx, lz + bz) for bx, bz in bogie_vectors] + [(fx, fz)]
+    B = [(0.0, 0.0), *bogie_vectors, (0.0, 0.0)]
+    return P, B
+
+
+def dynamics_gravity(params: RoverParams, g: ArrayLike) -> Array:
+    """``dynamics_terms(params, g, ġ).gravity`` (∂V/∂g, (7,)), bit for bit, without H, c and the wheel kinematics.
+
+    The estimator's gravity stiffness differentiates ∂V/∂g at four configurations per step.
+    """
+    P, B = _mass_point_vectors(params, _check_g(g))
+    m = (params.body_mass, params.bogie_mass, params.wheel_mass, params.wheel_mass, params.wheel_mass)
+    total = sum_px = sum_bx = 0.0
+    for mk, (px, _), (bx, _) in zip(m, P, B, strict=True):
+        total += mk
+        sum_px += mk * px
+        sum_bx += mk * bx
+    weight = params.gravity
+    return np.array([0.0, weight * total, -weight * sum_px, -weight * sum_bx, 0.0, 0.0, 0.0])
 
 
 class _RotationalInertia:
@@ -641,123 +700,6 @@ def generalised_wheel_forces(
         torque = np.broadcast_to(np.asarray(drive_torque, dtype=float), (3,))
         q[list(_WHEEL_COORDINATE)] += torque
     return q
-
-
-# ---------------------------------------------------------------------------
-# Wheel–terrain quantities
-# ---------------------------------------------------------------------------
-
-
-def terrain_contact_force_world(normal_load: ArrayLike, drawbar_pull: ArrayLike, gamma: ArrayLike) -> Array:
-    """World (F_x, F_z) of the soil's force on a wheel (N), shape (..., 2).
-
-    W acts along the terrain normal n = (sin γ, cos γ) and DP along the
-    tangent t = (cos γ, −sin γ) of eq. 39. γ is the contact angle w.r.t. the
-    world horizontal in the same sense as the pitch: positive when the
-    terrain descends forward, so a wheel centre moving along the terrain has
-    γ = atan(−v_z/v_x) (eq. 79) and a path z_wc(x) gives γ = −atan(dz_wc/dx).
-    """
-    W = np.asarray(normal_load, dtype=float)
-    dp = np.asarray(drawbar_pull, dtype=float)
-    gam = np.asarray(gamma, dtype=float)
-    s, c = np.sin(gam), np.cos(gam)
-    return np.stack(np.broadcast_arrays(W * s + dp * c, W * c - dp * s), axis=-1)
-
-
-def load_cell_forces(
-    normal_load: ArrayLike, drawbar_pull: ArrayLike, contact_angle_gamma: ArrayLike, carrier_angle: ArrayLike
-) -> tuple[Array, Array]:
-    """Load-cell components (F_L, F_⊥) of the soil force on a wheel (N), eqs. 81–82 (vectorised).
-
-    F_L = W cos(γ − ε) − DP sin(γ − ε)   along the carrier z axis (the single-axis cell)
-    F_⊥ = W sin(γ − ε) + DP cos(γ − ε)   along the carrier x axis
-
-    i.e. the world force of :func:`terrain_contact_force_world` projected on
-    the carrier axes (sin ε, cos ε) and (cos ε, −sin ε). At γ = ε: F_L = W,
-    F_⊥ = DP.
-    """
-    W = np.asarray(normal_load, dtype=float)
-    dp = np.asarray(drawbar_pull, dtype=float)
-    delta = np.asarray(contact_angle_gamma, dtype=float) - np.asarray(carrier_angle, dtype=float)
-    s, c = np.sin(delta), np.cos(delta)
-    return W * c - dp * s, W * s + dp * c
-
-
-def wheel_forces_from_load_cell(
-    axial_force: ArrayLike, perpendicular_force: ArrayLike, contact_angle_gamma: ArrayLike, carrier_angle: ArrayLike
-) -> tuple[Array, Array]:
-    """(W, DP) from (F_L, F_⊥): the inverse rotation of eqs. 81–82 (N)."""
-    f_l = np.asarray(axial_force, dtype=float)
-    f_p = np.asarray(perpendicular_force, dtype=float)
-    delta = np.asarray(contact_angle_gamma, dtype=float) - np.asarray(carrier_angle, dtype=float)
-    s, c = np.sin(delta), np.cos(delta)
-    return f_l * c + f_p * s, -f_l * s + f_p * c
-
-
-def contact_angle_from_velocity(centre_velocity: ArrayLike) -> Array:
-    """γ = atan(−v_z / v_x) of a wheel centre's world velocity (..., 2) (rad), eq. 79.
-
-    ``arctan2(−v_z, v_x)`` would flip by π when reversing; eq. 79 is an
-    arctangent of the ratio, so a reversing wheel gets the same γ as a forward
-    one. A wheel at rest (v_x = v_z = 0) gets γ = 0.
-    """
-    v = np.asarray(centre_velocity, dtype=float)
-    vx, vz = v[..., 0], v[..., 1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        gamma = np.arctan(np.where(vx != 0.0, -vz / np.where(vx != 0.0, vx, 1.0), 0.0))
-    vertical = (vx == 0.0) & (vz != 0.0)
-    return np.where(vertical, -np.sign(vz) * 0.5 * math.pi, gamma)
-
-
-def slip_from_motion(wheel_rate: ArrayLike, centre_speed: ArrayLike, radius: float) -> Array:
-    """Slip (> 0) or skid (< 0) of a wheel, [RB] eqs. 1–2, clipped to [−1, 1].
-
-    i = 1 − v/(r ω) when |r ω| ≥ |v| (eq. 1), i = r ω / v − 1 otherwise (eq. 2).
-
-    Args:
-        wheel_rate: absolute wheel spin rate ω about +y (rad/s), positive rolling forward.
-        centre_speed: signed speed v of the wheel centre along the terrain
-            tangent (m/s), positive forward.
-        radius: r_w (m).
-
-    Guards: a wheel at rest (ω = v = 0) has i = 0. When r ω and v do not have
-    the same sign (one of them zero or reversed, e.g. a stalled rover sliding
-    back while its wheels still turn forward) eqs. 1–2 leave [−1, 1]; the
-    wheel is then at full slip, i = +1 if the rim moves forward relative to
-    the centre (r ω > v) and i = −1 (locked, skidding) otherwise, so that the
-    soil force opposes the sliding as the forward-driving model's DP(±1)
-    does. A wheel spinning on a stationary centre thus has i = 1 and a locked
-    wheel moving forward i = −1, the formulas' own limits. Driving backwards
-    (both negative) is outside the paper's model; eqs. 1–2 are applied to it
-    as printed.
-    """
-    rim = radius * np.asarray(wheel_rate, dtype=float)
-    v = np.asarray(centre_speed, dtype=float)
-    if rim.shape != v.shape:
-        rim, v = np.broadcast_arrays(rim, v)
-    slipping = np.abs(rim) >= np.abs(v)
-    numerator = np.where(slipping, v, rim)
-    denominator = np.where(slipping, rim, v)
-    # The denominator is 0 only at rest (|v| ≤ |r ω| = 0), where i = 0.
-    at_rest = denominator == 0.0
-    ratio = np.divide(numerator, np.where(at_rest, 1.0, denominator))
-    slip = np.where(slipping, 1.0 - ratio, ratio - 1.0)
-    opposed = rim * v <= 0.0
-    slip = np.where(opposed, np.sign(rim - v), slip)
-    result: Array = np.clip(np.where(at_rest, 0.0, slip), -1.0, 1.0)
-    return result
-
-
-def slip_from_motion_scalar(wheel_rate: float, centre_speed: float, radius: float) -> float:
-    """:func:`slip_from_motion` for one wheel in plain floats (the plant's inner loop)."""
-    rim = radius * wheel_rate
-    v = centre_speed
-    if rim == 0.0 and v == 0.0:
-        return 0.0
-    if rim * v <= 0.0:
-        return 1.0 if rim > v else -1.0
-    slip = 1.0 - v / rim if abs(rim) >= abs(v) else rim / v - 1.0
-    return min(max(slip, -1.0), 1.0)
 
 
 def body_specific_force(params: RoverParams, g: ArrayLike, g_ddot: ArrayLike) -> Array:

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from terrain_estimation.filters.base import Array
+from terrain_estimation.filters.sigma_points import solve
 from terrain_estimation.models.rover import (
     N_COORDINATES,
     RoverParams,
@@ -85,14 +86,30 @@ def pitch_from_gravity(specific_force_x: float, specific_force_z: float) -> floa
     return math.atan2(-specific_force_x, specific_force_z)
 
 
-def _rate_map(pitch: float) -> Array:
-    """A with ġ = A [ẋ^R, θ̇, q̇1, q̇2, q̇3, q̇4] (eqs. 45, 66), shape (7, 6)."""
-    A = np.zeros((N_COORDINATES, 6))
-    A[_X0, 0] = math.cos(pitch)
-    A[_Z0, 0] = -math.sin(pitch)
+def _rate_map_template(columns: int) -> Array:
+    """The constant entries of :func:`_rate_map` (read-only): 1 for θ̇, q̇1 and each wheel rate."""
+    A = np.zeros((N_COORDINATES, columns))
     A[_PITCH, 1] = 1.0
     A[_BOGIE, 2] = 1.0
-    A[4:, 3:] = np.eye(3)
+    A[4:, 3:6] = np.eye(3)
+    A.setflags(write=False)
+    return A
+
+
+_RATE_MAP = _rate_map_template(6)
+_RATE_MAP_VERTICAL = _rate_map_template(7)
+
+
+def _rate_map(pitch: float, *, vertical: bool = False) -> Array:
+    """A with ġ = A [ẋ^R, θ̇, q̇1, q̇2, q̇3, q̇4] (eqs. 45, 66), shape (7, 6).
+
+    ``vertical``: a seventh column for ż^R (ẋ0 += ż^R sin θ, ż0 += ż^R cos θ), shape (7, 7).
+    """
+    A = (_RATE_MAP_VERTICAL if vertical else _RATE_MAP).copy()
+    A[_X0, 0] = math.cos(pitch)
+    A[_Z0, 0] = -math.sin(pitch)
+    if vertical:
+        A[_X0, 6], A[_Z0, 6] = math.sin(pitch), math.cos(pitch)
     return A
 
 
@@ -225,10 +242,7 @@ def _contact_angle_jacobian(
     rates = np.concatenate([inputs[2:5], np.zeros(3), inputs[5:6]])  # [ẋ^R, θ̇, q̇1, q̇2..4 = 0, (ż^R)]
 
     def velocities(p_: float, b_: float) -> tuple[Array, Array]:
-        A = _rate_map(p_)
-        if n == 6:
-            A = np.column_stack([A, np.zeros(N_COORDINATES)])
-            A[_X0, 6], A[_Z0, 6] = math.sin(p_), math.cos(p_)
+        A = _rate_map(p_, vertical=n == 6)
         jv = wheel_centre_jacobian(params, configuration(p_, b_)) @ A
         v_ = jv @ rates
         v_[:, 1] += sink_rate
@@ -281,9 +295,10 @@ def path_tangent_angles(
     angles, x, A = _path_angles(params, pitch, bogie_angle, sinkage)
     errors = []
     for m in (3, 4):
-        fit = np.linalg.solve(A, x**m)
+        fit = solve(A, x**m)
         errors.append(m * x ** (m - 1) - (fit[1] + 2.0 * fit[2] * x))
-    weights = np.cross(errors[0], errors[1])
+    (a0, a1, a2), (b0, b1, b2) = errors[0].tolist(), errors[1].tolist()
+    weights = np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])  # np.cross's products and differences
     weights = weights / (np.sum(np.abs(weights)) or 1.0)
     if weights.sum() < 0.0:
         weights = -weights
@@ -298,7 +313,7 @@ def _path_angles(
     x = centres[:, 0] - float(centres[:, 0].mean())
     A = np.column_stack([np.ones(3), x, x * x])
     heights = centres[:, 1] if sinkage is None else centres[:, 1] + np.asarray(sinkage, dtype=float)
-    coef = np.linalg.solve(A, heights)
+    coef = solve(A, heights)
     slope = coef[1] + 2.0 * coef[2] * x
     return -np.arctan(slope), x, A
 

@@ -19,9 +19,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from terrain_estimation.filters.base import Array
+from terrain_estimation.filters.sigma_points import solve
 from terrain_estimation.models.rover import (
     N_COORDINATES,
     RoverParams,
+    dynamics_gravity,
     dynamics_terms,
     wheel_angular_velocity_jacobian,
 )
@@ -84,8 +86,8 @@ def kinematic_terms(params: RoverParams, pitch: float, bogie_angle: float) -> Ki
     h = _STIFFNESS_STEP
     stiffness = np.empty((N_COORDINATES, 2))
     for col, (dp, dq) in enumerate(((h, 0.0), (0.0, h))):
-        plus = dynamics_terms(params, configuration(pitch + dp, bogie_angle + dq), zero).gravity
-        minus = dynamics_terms(params, configuration(pitch - dp, bogie_angle - dq), zero).gravity
+        plus = dynamics_gravity(params, configuration(pitch + dp, bogie_angle + dq))
+        minus = dynamics_gravity(params, configuration(pitch - dp, bogie_angle - dq))
         stiffness[:, col] = (plus - minus) / (2.0 * h)
     return KinematicTerms(
         mass_matrix=np.asarray(terms.mass_matrix, dtype=float),
@@ -211,7 +213,7 @@ class GeneralEstimatorModel(StepNoiseModel):
                 - terms.gravity_gradient[free]
                 - wheel_acc @ H[np.ix_(free, wheels)].T
             )
-            solved = np.linalg.solve(H[np.ix_(free, free)], rhs.T).T
+            solved = solve(H[np.ix_(free, free)], rhs.T).T
             return np.asarray(solved, dtype=float)
         out = np.empty((X.shape[0], 4))
         for k in range(X.shape[0]):

@@ -65,7 +65,8 @@ re-exported (``name as name``).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from functools import partial
 from typing import Any
 
 from geometry_msgs.msg import TwistStamped, WrenchStamped
@@ -298,24 +299,58 @@ class RoverAdapter:
     def handle(self, key: str, msg: Any) -> list[tuple[str, Any]]:
         t = stamp_to_ns(msg.header.stamp) * 1e-9
         if key == "imu":
-            self._on_imu(t, msg)
+            acc = msg.linear_acceleration
+            self._on_imu(t, acc.x, acc.z, msg.angular_velocity.y)
         elif key == "joint_states":
             self._on_joints(t, msg)
         elif key == "velocimeter":
-            speed = msg.twist.linear.x
-            if self._finite("velocimeter", [("twist.linear.x", speed)]):
-                self._call("velocimeter", t, self.estimator.add_velocimeter, float(speed))
+            self._on_velocimeter(t, msg.twist.linear.x)
         elif key.startswith("load_"):
-            self._on_load_cell(t, key[len("load_") :], msg)
+            force = msg.wrench.force
+            self._on_load_cell(t, key[len("load_") :], force.z, force.x)
         else:
             return []
         return self._drain()
 
-    def _on_imu(self, t: float, msg: Any) -> None:
-        acc, gyro = msg.linear_acceleration, msg.angular_velocity
-        fields = [("linear_acceleration.x", acc.x), ("linear_acceleration.z", acc.z), ("angular_velocity.y", gyro.y)]
+    @property
+    def field_handlers(self) -> Mapping[str, Callable[[int, Sequence[float]], list[tuple[str, Any]]]]:
+        """Input key -> the handler taking a message's stamp (ns) and its checked fields (the TopicSpec's
+        ``fields`` then ``gravity_fields``, in order) in place of the message: :meth:`handle` of that message,
+        without it (the offline replay decodes these inputs in bulk, :mod:`terrain_estimation.tools.estimate_replay`).
+        ``joint_states`` (names and arrays of any length) is handled as a message."""
+        handlers: dict[str, Callable[[int, Sequence[float]], list[tuple[str, Any]]]] = {
+            "imu": self.handle_imu,
+            "velocimeter": self.handle_velocimeter,
+        }
+        for wheel in WHEELS:
+            handlers[f"load_{wheel}"] = partial(self.handle_load_cell, wheel)
+        return handlers
+
+    def handle_imu(self, stamp_ns: int, values: Sequence[float]) -> list[tuple[str, Any]]:
+        """:meth:`handle` of an IMU sample given by its stamp and ``linear_acceleration.x``, ``.z``,
+        ``angular_velocity.y``."""
+        self._on_imu(stamp_ns * 1e-9, values[0], values[1], values[2])
+        return self._drain()
+
+    def handle_velocimeter(self, stamp_ns: int, values: Sequence[float]) -> list[tuple[str, Any]]:
+        """:meth:`handle` of a velocimeter sample given by its stamp and ``twist.linear.x``."""
+        self._on_velocimeter(stamp_ns * 1e-9, values[0])
+        return self._drain()
+
+    def handle_load_cell(self, wheel: str, stamp_ns: int, values: Sequence[float]) -> list[tuple[str, Any]]:
+        """:meth:`handle` of ``wheel``'s load-cell sample given by its stamp and ``wrench.force.z`` (then
+        ``wrench.force.x`` with two-axis cells)."""
+        self._on_load_cell(stamp_ns * 1e-9, wheel, values[0], values[1] if self.two_axis else None)
+        return self._drain()
+
+    def _on_imu(self, t: float, ax: Any, az: Any, gy: Any) -> None:
+        fields = [("linear_acceleration.x", ax), ("linear_acceleration.z", az), ("angular_velocity.y", gy)]
         if self._finite("imu", fields):
-            self._call("imu", t, self.estimator.add_imu, float(acc.x), float(acc.z), float(gyro.y))
+            self._call("imu", t, self.estimator.add_imu, float(ax), float(az), float(gy))
+
+    def _on_velocimeter(self, t: float, speed: Any) -> None:
+        if self._finite("velocimeter", [("twist.linear.x", speed)]):
+            self._call("velocimeter", t, self.estimator.add_velocimeter, float(speed))
 
     def _on_joints(self, t: float, msg: Any) -> None:
         topic = "joint_states"
@@ -339,9 +374,8 @@ class RoverAdapter:
         if self._finite(topic, fields):
             self._call(topic, t, self.estimator.add_joint_state, bogie, angles, torques)
 
-    def _on_load_cell(self, t: float, wheel: str, msg: Any) -> None:
+    def _on_load_cell(self, t: float, wheel: str, axial: Any, perpendicular: Any) -> None:
         topic = f"wheel/{wheel}/load"
-        axial, perpendicular = msg.wrench.force.z, msg.wrench.force.x
         fields = [("wrench.force.z", axial)] + ([("wrench.force.x", perpendicular)] if self.two_axis else [])
         if not self._finite(topic, fields):
             return
