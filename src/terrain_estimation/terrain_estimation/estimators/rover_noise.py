@@ -68,14 +68,14 @@ Which blocks, and why (measured on terrain 1, E1+E2):
   0.77–0.98 on terrains 2–6; the front wheel's walks settle at σ ≈ 0.04 N (W)
   and 0.06 N (DP), the rear's at 0.06 and 0.075 N. **Where they start**: at
   the base σ (:class:`~terrain_estimation.models.rover_estimators.WheelForceProcessNoise`,
-  0.05 N, the window-mean loads' change per step). The cells' innovations
+  0.15 N; the window-mean loads change by ≈ 0.05 N per step, but a 0.05 N
+  base made E1+E3's W over-confident in the full reproduction: see there). The cells' innovations
   are coloured (lag-one correlation 0.57–0.91 on terrain 1: a random walk
   lags the loads' smooth trends, and a smaller Q lags more, so ν² falls with
   S and the matching's likelihood is flat), so the scales come down slowly
   (ln s by −0.01 to −0.03 per step over the first 40 s); from the 0.15 N
-  base of before the cells' joint NIS over a 40-s run was 5.34–5.40 of 6 on
-  terrain 1 (seeds 1, 2, 51), from 0.05 N 5.55–5.59, the published W, DP, γ
-  and their variances unchanged to three digits. The matching itself is
+  base the cells' joint NIS over a 40-s run is 5.34–5.40 of 6 on terrain 1
+  (seeds 1, 2, 51), from 0.05 N 5.55–5.59. The matching itself is
   unbiased where its model holds: on a stationary random walk in white
   noise it settles within ≈ 2 s from a base 9× off, at mean ν²/S
   0.996–0.999 (test/test_rover_noise_matching.py), and a longer memory
