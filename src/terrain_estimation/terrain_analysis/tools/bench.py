@@ -88,13 +88,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from terrain_analysis.tools.bench_common import BAGS_DIR, BenchConfig, machine_info
+from terrain_analysis.tools.bench_common import BAGS_DIR, BenchConfig, add_json_arguments, machine_info, write_json
 from terrain_analysis.tools.bench_monte_carlo import bench_qc_monte_carlo, format_qc_monte_carlo
 from terrain_analysis.tools.bench_quarter_car import (
     BAGS,
@@ -122,6 +121,7 @@ from terrain_analysis.tools.bench_vehicles import (
     format_skid,
 )
 from terrain_estimation.cli import cli_main
+from terrain_estimation.outputs import check_output_path
 
 __all__ = [
     "ROW_LABELS",
@@ -206,7 +206,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         ),
     )
     parser.add_argument("--quick", action="store_true", help="short smoke run (few steps, 2 s drives)")
-    parser.add_argument("--json", metavar="PATH", help="also write every figure to this JSON file")
+    add_json_arguments(parser)
     parser.add_argument("--bags", metavar="DIR", default=str(BAGS_DIR), help="directory of the recorded bags")
     parser.add_argument(
         "--only",
@@ -220,6 +220,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         ),
     )
     args = parser.parse_args(argv)
+    if args.json:  # refused before the run, not after it
+        check_output_path(args.json, overwrite=args.overwrite, kind="file")
     cfg = BenchConfig.quick() if args.quick else BenchConfig()
     sections: dict[str, tuple[Callable[[], dict[str, Any]], Callable[[dict[str, Any]], str]]] = {
         "skid_replay": (lambda: bench_skid_replay(cfg, Path(args.bags)), format_skid_replay),
@@ -239,10 +241,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         figures = run_bench(cfg, Path(args.bags))
         print(format_report(figures))
     if args.json:
-        path = Path(args.json)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(figures, indent=2) + "\n")
-        print(f"\nwrote {path}")
+        print(f"\nwrote {write_json(args.json, figures, overwrite=args.overwrite)}")
     return 0
 
 

@@ -6,7 +6,9 @@ duration, and the speed rows (simulated or recorded seconds over wall seconds) w
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import json
 import math
 import os
 import platform
@@ -135,3 +137,20 @@ def speed_table(title: str, rows: Sequence[dict[str, Any]], *, filter_column: bo
             line += f"{filt:>16}"
         lines.append(line)
     return lines
+
+
+def add_json_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--json PATH`` and ``--overwrite``: the benchmarks' figures as a JSON file, never over a user's file."""
+    parser.add_argument("--json", metavar="PATH", help="also write every figure to this JSON file (a new file)")
+    parser.add_argument("--overwrite", action="store_true", help="--json may replace an existing regular file")
+
+
+def write_json(path: str | os.PathLike[str], figures: Any, *, overwrite: bool = False) -> Path:
+    """Write ``figures`` to ``path``: refused (nothing written) where something exists and ``overwrite`` is not
+    given, and where the path is a directory (:func:`terrain_estimation.outputs.check_output_path`)."""
+    from terrain_estimation.outputs import check_output_path
+
+    out = check_output_path(path, overwrite=overwrite, kind="file")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(figures, indent=2) + "\n")
+    return out

@@ -29,7 +29,9 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from terrain_analysis.tools.bench_common import BenchConfig, machine_info
+from terrain_analysis.tools.bench_common import BenchConfig, add_json_arguments, machine_info, write_json
+from terrain_estimation.cli import cli_main
+from terrain_estimation.outputs import check_output_path
 
 __all__ = [
     "SCALING_SECONDS",
@@ -243,8 +245,10 @@ def bench_diagnosis_scaling(
     cases = [c for c in SIM2REAL_CASES if vehicles is None or c[0] in vehicles]
     rows: list[dict[str, Any]] = []
     with contextlib.ExitStack() as stack:
-        root = keep if keep is not None else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="scaling_")))
-        root.mkdir(parents=True, exist_ok=True)
+        if keep is not None:
+            root = keep_directory(keep)
+        else:
+            root = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="scaling_")))
         for vehicle, overrides in cases:
             if vehicle not in supported_vehicles():
                 rows.append({"vehicle": vehicle, "skipped": "no replay model installed"})
@@ -271,6 +275,24 @@ def bench_diagnosis_scaling(
     return rows
 
 
+#: The file that marks a ``--keep`` directory as this benchmark's own (its bags and JSON may be reused, replaced).
+KEEP_MARKER = ".bench_sim2real"
+
+
+def keep_directory(path: Path) -> Path:
+    """``path`` as the benchmark's ``--keep`` directory: created with its marker when absent or empty; an existing
+    one only when it carries the marker (a directory this benchmark made), since the run reuses the bags in it
+    and replaces its JSON files. Raises FileExistsError (nothing written) for any other existing path."""
+    if path.exists() and not (path / KEEP_MARKER).is_file() and (not path.is_dir() or any(path.iterdir())):
+        raise FileExistsError(
+            f"--keep {str(path)!r} exists and was not made by this benchmark (no {KEEP_MARKER}): its files would be "
+            "reused as the benchmark's bags or replaced; give a new directory"
+        )
+    path.mkdir(parents=True, exist_ok=True)
+    (path / KEEP_MARKER).touch()
+    return path
+
+
 def format_diagnosis_scaling(rows: list[dict[str, Any]]) -> list[str]:
     """The scaling table: CPU per bag second against the shortest bag's (1.00 = linear)."""
     lines = [
@@ -292,6 +314,7 @@ def format_diagnosis_scaling(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+@cli_main("bench_sim2real")
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="bench_sim2real", description="Diagnosis cost against bag length, per vehicle (issue 22/23)."
@@ -301,8 +324,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--vehicles", nargs="+", default=None, help="vehicles (default: all four)")
     parser.add_argument("--keep", metavar="DIR", help="keep the bags and each diagnosis's JSON here (reused)")
     parser.add_argument("--no-warm", action="store_true", help="no untimed warm-up diagnosis per process")
-    parser.add_argument("--json", metavar="PATH", help="also write every figure to this JSON file")
+    add_json_arguments(parser)
     args = parser.parse_args(argv)
+    if args.json:  # refused before the run, not after it
+        check_output_path(args.json, overwrite=args.overwrite, kind="file")
     cfg = BenchConfig.quick() if args.quick else BenchConfig()
     vehicles = args.vehicles if not args.quick else (args.vehicles or ["quarter_car"])
     rows = bench_diagnosis_scaling(
@@ -314,9 +339,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     print("\n".join(format_diagnosis_scaling(rows)))
     if args.json:
-        path = Path(args.json)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps({"machine": machine_info(), "diagnosis_scaling": rows}, indent=2) + "\n")
+        write_json(args.json, {"machine": machine_info(), "diagnosis_scaling": rows}, overwrite=args.overwrite)
     return 0
 
 
