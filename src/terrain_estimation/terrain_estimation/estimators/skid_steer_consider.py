@@ -51,6 +51,37 @@ the bank, the sharp turn and the S-curve, and NEES windows in band 91, 81,
 ``v_y`` (a 40 ms lag, the tire relaxation the observer lacks, is 4–5 % of its
 mean square), which is what the C_x sensitivity describes there.
 
+**Friction** (``consider.friction``, its own size ``friction_std``; off by
+default). The brush force at a fixed slip is ``μ F_z g(t)`` with ``t`` the
+sliding fraction of the patch, so ``∂ln F/∂ln μ = t (3 − 2t)/(3 − 3t + t²)``:
+0 at low utilisation, 1 when the tire slides. On a straight run it is ~0 (the
+observer's tires at ``t`` ≈ 0.01 on the straight acceleration run: a friction
+term leaves every figure as it is). But a skid-steer vehicle turns by sliding
+its tires: in every turn of the reproduction the observer's tires of one side
+are at ``t`` = 1 and the others at 0.5–0.9 (``∂ln F/∂ln μ`` 0.85–0.9 on the
+nominal turn, the bank, the μ patch, the sharp turn, C_α +30 %). The first
+order holds: rerun with μ × 0.9 and × 1.1, the filter's ``v_y`` moves by
+0.045 and 0.035 m/s (RMS) in the sharp turn against 0.040 from ``Ψ`` with
+``friction_std`` 0.1, 0.0008/0.0006 against 0.0006 on the nominal turn,
+0.0047/0.0038 against 0.0042 on the bank (seed 1000). In the sharp turn
+(3 m/s, 0.6 rad/s) a 10 % friction error moves ``v_y`` by 5× the filter's
+σ; the truth plant's μ there is the nominal one, so any friction term makes
+it far too cautious (NEES windows in band 94 % → 0-3 % at 10, 20, 30 %;
+``v_y`` e²/σ² 1.56 → 0.05, 0.01, 0.01; the bank 94 % → 69, 53, 53 %; 2
+seeds), while on the μ patch (μ halved) ``v_y`` e²/σ² only falls from 176
+to 163, 139, 117. There the error is a friction the data do not show: the
+observer given the patch's μ has a mean ``v_y`` error of 0.0014 m/s on it
+against 0.016 with the nominal μ, yet with the nominal μ its whitened
+innovations on the steady patch have mean ≈ 0 and mean square ≈ 1 per
+channel and its Q scale sits at its floor; the effect grows faster than
+linearly as μ falls (0.0007 m/s per 10 % at the nominal μ, 0.015 m/s at
+μ × 0.5). A friction scale state does not learn it either (it takes up the
+brush law's shape error: nominal |e_β| 1.6 → 8.9 mrad, 21 with a 30 s
+reversion), and inflating the published covariance by the windowed NIS
+excess reaches 39-44 % of the patch's windows (from 33-39 %). So the
+default does not consider the friction; a user who knows the ground less
+well than the reproduction's scenarios do switches it on.
+
 **Known limitation.** The motion resistance, nominal 0 and clipped at 0 in
 the model, gets ``F_c = 0`` from the downward step along ``[Ψ; −I]``, so for
 it only the measurement term acts. With that process term restored (and the
@@ -105,6 +136,13 @@ class ConsiderConfig:
             e²/σ² is nearest 1 (1.2; 0.75 at 20 %, 2.0 at 10 %), and it
             holds on the bank, the sharp turn and the S-curve (module
             docstring).
+        friction_std: root-mean-square deviation of ``ln s_μ`` when the
+            friction is considered (its own size: a friction coefficient
+            varies between surfaces far more than a tire's stiffness does).
+            Default 0.3: μ of one tire on firm ground within about ±30 %
+            (peak μ: dry asphalt 0.8–0.9, wet 0.5–0.7, gravel 0.6; Wong,
+            *Theory of Ground Vehicles*, ch. 1). Not considered by default (module
+            docstring, "Friction").
         resistance_rms: root-mean-square motion-resistance coefficient the
             observer's model leaves out (force per unit normal load). Default
             0.02: pneumatic tires on firm ground (0.01–0.03, Wong, *Theory of
@@ -116,6 +154,7 @@ class ConsiderConfig:
 
     parameters: tuple[str, ...] = ("longitudinal_stiffness", RESISTANCE_NAME)
     scale_std: float = 0.15
+    friction_std: float = 0.3
     resistance_rms: float = 0.02
     step: float = 1e-5
 
@@ -124,10 +163,17 @@ class ConsiderConfig:
         object.__setattr__(self, "parameters", state_names("consider.parameters", self.parameters))
         if set(self.parameters) & set(GRAVITY_NAMES):
             raise ValueError(f"consider.parameters cannot hold the ground slope {GRAVITY_NAMES}, got {self.parameters}")
-        for name in ("scale_std", "resistance_rms"):
+        for name in ("scale_std", "friction_std", "resistance_rms"):
             check_non_negative("consider", name, getattr(self, name))
         if not (math.isfinite(self.step) and 0.0 < self.step <= 1e-2):
             raise ValueError(f"consider.step must be in (0, 0.01], got {self.step}")
+
+    def variance(self, name: str) -> float:
+        """The mean-square deviation of the considered parameter ``name`` (``ln s`` of a scale, the
+        motion-resistance coefficient itself)."""
+        if name == RESISTANCE_NAME:
+            return self.resistance_rms**2
+        return (self.friction_std if name == "friction" else self.scale_std) ** 2
 
 
 class ConsiderCovariance:
@@ -153,8 +199,7 @@ class ConsiderCovariance:
         self._c = np.array([3 + extra.index(p) for p in self.considered], dtype=int)
         self._n_aug = 3 + len(extra)
         self._x_nominal = np.zeros(self._n_aug)
-        variances = [config.resistance_rms**2 if p == RESISTANCE_NAME else config.scale_std**2 for p in self.considered]
-        self._C = np.diag(variances)
+        self._C = np.diag([config.variance(p) for p in self.considered])
         self.psi = np.zeros((n_s, len(self.considered)))
         self._cov: Array | None = None  # Ψ C Ψᵀ of the current Ψ when known (set_sensitivity)
 

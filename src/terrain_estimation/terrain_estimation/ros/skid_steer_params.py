@@ -279,7 +279,18 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "consider.scale_std",
         _CC.scale_std,
-        "[-] rms deviation of ln(scale) of each considered tire parameter (0.3: nominal within ~35 %)",
+        "[-] rms deviation of ln(scale) of each considered tire stiffness (the friction: consider.friction_std; "
+        "0.3: nominal within ~35 %)",
+        0.0,
+        10.0,
+    ),
+    ParamSpec(
+        "consider.friction_std",
+        _CC.friction_std,
+        "[-] rms deviation of ln(friction scale) when consider.friction is on (0.3: mu of one tire on firm ground "
+        "within ~30 %; between asphalt, gravel, grass and mud mu varies by a factor of 3). In a skid-steer turn the "
+        "tires of one side slide, so the lateral velocity's sensitivity to mu is large there (about 0.04 m/s per "
+        "10 % in a 3 m/s, 0.6 rad/s turn): off by default (figures: estimators/skid_steer_consider.py)",
         0.0,
         10.0,
     ),
@@ -542,6 +553,7 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SkidSteerEstimatorConf
     consider = ConsiderConfig(
         parameters=tuple(name for name in CONSIDER_NAMES if bool(values[f"consider.{name}"])),
         scale_std=_f(values, "consider.scale_std"),
+        friction_std=_f(values, "consider.friction_std"),
         resistance_rms=_f(values, "consider.resistance_rms"),
     )
     zupt = ZuptConfig(
