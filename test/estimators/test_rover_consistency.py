@@ -52,9 +52,11 @@ def test_published_variances_hold_on_a_truth_run(truth_run: RoverRun, axes: int)
 
     The bounds are looser than issue 21's [0.5, 2] and 90–98 % (a 40 s run holds few independent errors:
     they are correlated over seconds); before issue 21 the slip's e²/σ² was 0.05, τ_R's 0.001–0.005 and
-    48 % of the middle wheel's DP and γ errors were within 2σ. Estimators 1 + 3 (single-axis cells) are
-    not held here: the bogie wheels' W is over-confident there (e²/σ² 2–4 on terrain 1: the synthesised F_⊥
-    carries an error as slow as γ̌'s that is not considered yet; docs/results/rover.md).
+    48 % of the middle wheel's DP and γ errors were within 2σ. The rear wheel's τ_R is held since eq. 48
+    takes the damping at the new rate (before: 63 % within 2σ on this run). Estimators 1 + 3 (single-axis
+    cells) are not held here: with the split error of their synthesised F_⊥ considered, their W pools at
+    e²/σ² 1.28 and 95 % within 2σ over the six terrains (docs/results/rover.md), but on this 40 s stretch
+    the middle wheel's W is at 2.2 and 79 % (its slow error has few independent values in 40 s).
     """
     out = _estimate(truth_run, RoverEstimatorConfig(load_cell_axes=axes))
     settled = [e for e in out if e.settled]
@@ -80,11 +82,6 @@ def test_published_variances_hold_on_a_truth_run(truth_run: RoverRun, axes: int)
             # front wheel's γ error is ≈ 3e-3 rad, so its three are cautious (0.1-0.2): bounded below at 0.05.
             low = 0.25 if q in ("slip", "resistive_torque") else 0.05
             assert low < qc.mean_normalised < 4.0, (j, q, qc)
-            if (j, q) == (0, "resistive_torque"):
-                # Not met (docs/results/rover.md): the rear wheel's τ_R error (≈ 6e-4 N·m, twice the others')
-                # is slow and not covered by P − Q; 63 % within 2σ on this run.
-                assert qc.within_2sigma >= 0.5, (j, q, qc)
-                continue
             assert qc.within_2sigma >= 0.85, (j, q, qc)
 
 

@@ -193,10 +193,15 @@ def section_consistency(rr: Any, res: Any, variants: Sequence[str], defaults: Se
         "terrain 6) over-confident, less so with the repeat-pass measure. (2) τ_R is "
         "published for the window just observed (`P_k|k − Q_k`) plus eq. 49's neglected wheel coupling "
         "I_wg (θ̈ + q̈1), now estimated without counting Estimator 1's acceleration noise (I_wg² (â² − P_â) "
-        "averaged, floored at 0; it was I_wg² â², 5× too cautious): the middle and front wheels are consistent, "
-        "the rear wheel's slow τ_R error (about twice the others') is over-confident. (3) Estimators 1 + 3 "
-        "synthesise F_⊥ with an error as slow as γ̌'s that is not considered: in a 200 s run of terrain 1 with "
-        "another noise seed the bogie wheels' W was over-confident (e²/σ² 2–4). The paper's choices (ż0^R = 0, "
+        "averaged, floored at 0; it was I_wg² â², 5× too cautious), plus the applied torque's swing inside the "
+        "window (the estimate is the window's mean, the truth is read at the stamp: the squared deviation of the "
+        "sample nearest the stamp from the window mean, averaged over 5 s). The rear wheel's τ_R was over-confident "
+        "until eq. 48 took the wheel damping at the step's new rate (the encoders give window-mean rates; the "
+        "explicit step put ≈ 0.46 q̈ N·m into τ_R; models/rover_general_model.py). (3) Estimators 1 + 3 "
+        "synthesise F_⊥ for the bogie wheels by splitting F_⊥12 at one DP/W; the split errs by "
+        "F_L1 F_L2/(F_L1 + F_L2) · k · (i1 − i2) (k = `filter.split_traction_slope`, the nominal soil's DP/W slope "
+        "in slip), slow and opposite on the two wheels: it enters R and the published W and DP variances. "
+        "The paper's choices (ż0^R = 0, "
         "load-proportional split) leave a contact-angle error of 1–2° that no variance here covers.",
     ]
     rr.rep.add_section(lines)

@@ -32,7 +32,9 @@ DP(W, i), τ_R(W, i) models of ``terrain_msgs/TerrainResponseModel`` (C.7).
   slip R and Estimator 2/3's Q of W and DP (rotated with γ, per wheel) matched to the innovations
   (``noise_matching``), the coloured contact-angle error and eq. 49's
   neglected wheel coupling considered in the published variances
-  (``contact_angle_bias``), τ_R published for the window just observed, and
+  (``contact_angle_bias``), τ_R published for the window just observed plus
+  its swing inside the window, Estimator 3's split of F_⊥12 sized by the
+  slips (``split_traction_slope``), and
   ``settled`` False for the first ``settle_steps`` updates after a start.
   Each estimate carries ``consistency_nis`` for ``/diagnostics``: the slips,
   the load cells and, with two-axis cells, the side's force balance through
@@ -133,6 +135,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -152,9 +155,12 @@ from terrain_estimation.estimators.rover_noise import (
     coupling_variance,
     is_settled,
     match_noise_scales,
+    nearest_covariance,
     process_block_part,
     rotated_force_noise_factor,
     smoothed_random_walk_variance,
+    split_considered,
+    split_covariance,
     statistical_linearisation,
 )
 from terrain_estimation.estimators.rover_outputs import (
@@ -277,6 +283,11 @@ class RoverTerrainEstimator(SensorWindows):
         self._p2 = np.diag(np.square(np.array(cfg.wheel_force_p0_sigma, dtype=float)))
         self._sinkage = SinkageTracker(cfg.sinkage, cfg.rover.wheel_radius, cfg.rover.wheel_width)
         self._balance = ForceBalance(cfg.rover.total_mass, cfg.rover.gravity)
+        # Estimator 3's F̌_⊥ floor covers eq. 88's load-proportional split; the terrain-frame split's error is
+        # modelled (rover_noise.split_covariance) and the floor is not added to it.
+        self._floors2 = (
+            cfg.floors if cfg.perpendicular_split == "load_cell" else replace(cfg.floors, synthesised_force=0.0)
+        )
         self.reset()
 
     # -- public API -----------------------------------------------------------------
@@ -299,6 +310,9 @@ class RoverTerrainEstimator(SensorWindows):
         self._next_scales = (self._scales1, self._scales2)
         self._tau_step_var = np.zeros(3)  # Q of τ_R over the last step
         self._coupling_var = np.zeros(3)  # averaged considered coupling variance of τ_R (rover_noise)
+        self._swing_var = np.zeros(3)  # averaged within-window swing of τ_R at the stamp (rover_noise)
+        self._split_var = np.zeros(3)  # Estimator 3's split error of F̌_⊥ this step (rover_noise.split_covariance)
+        self._next_swing = np.zeros(3)
         self._repeat_pass = RepeatPassError(self.config.contact_angle_bias.memory_steps)
         self._next_tau_step_var = np.zeros(3)
         self._last: RoverEstimate | None = None
@@ -532,6 +546,7 @@ class RoverTerrainEstimator(SensorWindows):
             q1_sigma[_SETTLE_IDX] *= _SETTLE_BOOST
         L1 = self.general_model.process_noise_factor(q1_sigma, dt)
         self._next_tau_step_var = np.square(q1_sigma[_TAU_IDX]) * (dt / cfg.step_s)
+        self._next_swing = np.square(m.wheel_torque_at_stamp - m.wheel_torque)
         prior1 = self.filter.predict(self._general, self.general_model, u, dt, process_noise_sqrt=L1)
         # Estimator 1 update (eqs. 62–74).
         if cfg.slip_rate_source == "estimate":
@@ -604,7 +619,9 @@ class RoverTerrainEstimator(SensorWindows):
         else:
             gamma, gamma_cov = contact_angle_covariance(p, kin_mean, kin_cov)
             vertical = (0.0, 0.0)
-        perp, perp_cov = self._perpendicular(m, x1, P1, gamma, gamma_cov)
+        # The τ_R increments of this step (and, quasi-static, the net forces they move) reach the measurements only
+        # at the next step (rover_noise.smoothed_random_walk_variance): F̌_⊥ of this window is without them.
+        perp, perp_cov = self._perpendicular(m, x1, P1 - _block_cov(L1, _TAU_IDX), gamma, gamma_cov)
         y2 = np.concatenate([gamma, m.axial_force, perp])
         if cfg.wheel_force_r_diag is not None:
             r2 = np.array(cfg.wheel_force_r_diag, dtype=float)
@@ -612,7 +629,7 @@ class RoverTerrainEstimator(SensorWindows):
             r2 = wheel_force_measurement_variances(
                 contact_angle_cov=gamma_cov,
                 noise=cfg.sensor_noise,
-                floors=cfg.floors,
+                floors=self._floors2,
                 load_cell_samples=m.cell_n,
                 synthesised_cov=perp_cov,
             )
@@ -685,7 +702,7 @@ class RoverTerrainEstimator(SensorWindows):
         idx = [_G.BOGIE_MOMENT, _G.FORCE_X, _G.PITCH, _G.BOGIE]
         mean = np.concatenate([x1[idx], m.axial_force, gamma])
         cov = np.zeros((10, 10))
-        cov[:4, :4] = P1[np.ix_(idx, idx)]
+        cov[:4, :4] = nearest_covariance(P1[np.ix_(idx, idx)])
         cov[4:7, 4:7] = np.diag(cfg.sensor_noise.load_cell**2 / m.cell_n)
         if terrain:
             cov[7:, 7:] = gamma_cov
@@ -694,7 +711,12 @@ class RoverTerrainEstimator(SensorWindows):
             e = carrier_angles(p, configuration(v[2], v[3]))
             return synthesised_perpendicular_forces(p, v[4:7], v[0], v[1], e, v[7:10] if terrain else None)
 
-        return perp_of(mean), propagate_covariance(perp_of, mean, cov)
+        perp_cov = propagate_covariance(perp_of, mean, cov)
+        if terrain:
+            split = split_covariance(m.axial_force, x1[_G.SLIP], np.diag(P1)[_G.SLIP], cfg.split_traction_slope)
+            self._split_var = np.diag(split).copy()
+            perp_cov = perp_cov + split
+        return perp_of(mean), perp_cov
 
     def _emit(
         self, t: float, *, initialised: bool, nis: tuple[float, float], accepted: bool, consistency: float = 0.0
@@ -711,6 +733,10 @@ class RoverTerrainEstimator(SensorWindows):
         gamma_var, load_var, pull_var = considered_variances(
             v2[0:3], x2[3:6], v2[3:6], x2[6:9], v2[6:9], bias, self._repeat_pass.variance
         )
+        if self.config.load_cell_axes == 1:
+            # The split error of F̌_⊥ is as slow as the terrain: the filter averages it as if white; considered.
+            eps = carrier_angles(self.config.rover, configuration(float(x1[_G.PITCH]), float(x1[_G.BOGIE])))
+            load_var, pull_var = split_considered(load_var, pull_var, x2[0:3] - eps, self._split_var)
         # Eq. 49 leaves out the wheels' inertial coupling to the carrier, I_wg (θ̈ + q̈1) on the bogie wheels
         # and I_wg θ̈ on the front: an error of τ_R that no innovation shows (considered, rover_noise).
         pitch_acc, bogie_acc = float(x1[_G.PITCH_ACC]), float(x1[_G.BOGIE_ACC])
@@ -724,10 +750,11 @@ class RoverTerrainEstimator(SensorWindows):
             acc = np.array([pitch_acc + bogie_acc] * 2 + [pitch_acc])
             var = np.array([carrier_acc_var] * 2 + [float(P1[pa, pa])])
             self._coupling_var = b * self._coupling_var + (1.0 - b) * (acc * acc - var)
+            self._swing_var = b * self._swing_var + (1.0 - b) * self._next_swing
         coupling = coupling_variance(
             self.config.rover.wheel_gear_inertia, np.sqrt(np.maximum(self._coupling_var, 0.0)), 0.0
         )
-        tau_var = smoothed_random_walk_variance(v1[3:6], self._tau_step_var) + coupling
+        tau_var = smoothed_random_walk_variance(v1[3:6], self._tau_step_var) + coupling + self._swing_var
         wheels = tuple(
             WheelTerrainEstimate(
                 wheel=name,

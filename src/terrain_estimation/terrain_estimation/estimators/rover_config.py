@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
+from terrain_estimation.checks import check_non_negative
 from terrain_estimation.estimators.rover_noise import ContactAngleBias, NoiseMatchingConfig
 from terrain_estimation.filters.faults import DivergenceConfig
 from terrain_estimation.filters.ukf import UnscentedKalmanFilter
@@ -108,6 +109,13 @@ class RoverEstimatorConfig:
             variances of γ, W and DP: a prior σ_b raised to the error the
             wheels' repeat passes show
             (:class:`~terrain_estimation.estimators.rover_noise.ContactAngleBias`).
+        split_traction_slope: Estimator 3 (terrain-frame split): k, the slope
+            of DP/W against slip, which with the bogie wheels' slip difference
+            sizes the error of giving both one DP/W
+            (:func:`~terrain_estimation.estimators.rover_noise.split_covariance`);
+            0.55 for the nominal [RB] Table II soil under a Kapvik wheel at
+            slips 0.15–0.25 (the slope of the Wong–Reece surrogate there,
+            DP/W 0.003 → 0.058 from i = 0.15 to 0.25 at 41–60 N); 0 disables.
         settle_steps: updates after a (re)initialisation before an estimate
             is flagged ``settled``.
         sinkage: the estimator's own model of each wheel's sinkage (Bekker's
@@ -150,6 +158,7 @@ class RoverEstimatorConfig:
     divergence: DivergenceConfig | None = None
     noise_matching: NoiseMatchingConfig = field(default_factory=NoiseMatchingConfig)
     contact_angle_bias: ContactAngleBias = field(default_factory=ContactAngleBias)
+    split_traction_slope: float = 0.55
     settle_steps: int = 10
     sinkage: SinkageSoil = field(default_factory=SinkageSoil)
 
@@ -182,6 +191,7 @@ class RoverEstimatorConfig:
             isinstance(self.settle_steps, int) and not isinstance(self.settle_steps, bool) and self.settle_steps >= 0
         ):
             raise ValueError(f"settle_steps must be an int ≥ 0, got {self.settle_steps!r}")
+        check_non_negative("RoverEstimatorConfig", "split_traction_slope", self.split_traction_slope)
         _check_optional_values("general_q_diag", self.general_q_diag, 22, positive=False)
         if self.general_q_diag is not None and min(self.general_q_diag) < 0.0:
             raise ValueError(f"general_q_diag must hold variances ≥ 0, got {self.general_q_diag!r}")

@@ -1,6 +1,6 @@
 """Honest rover variances: noise blocks matched to the innovations, a coloured contact-angle error, settling (issue 21).
 
-Three pieces the rover estimator (:mod:`terrain_estimation.estimators.rover`)
+The pieces the rover estimator (:mod:`terrain_estimation.estimators.rover`)
 adds on top of the paper's Estimators 1–3:
 
 **Noise blocks matched to the innovations** (:class:`NoiseMatchingConfig`,
@@ -150,9 +150,42 @@ item 3 that term was I_wg² â² at Estimator 1's θ̈, q̈1, whose noise (≈ 3
 rad/s² against a true ≈ 6e-4) it counted as coupling: τ_R was 5× too
 cautious (e²/σ² 0.17). It is now the unbiased I_wg² (â² − P_â)
 (:func:`coupling_variance`), averaged over 5 s and floored at 0; on terrain 1
-it is 0 (Estimator 1's acceleration variances exceed the squared estimates):
-τ_R's e²/σ² is 0.5–0.8 on the middle and front wheels and ≈ 3 on the rear,
-whose slow error (≈ 6e-4 N·m RMS, twice the others') nothing here states.
+it is 0 (Estimator 1's acceleration variances exceed the squared estimates).
+The rear wheel's slow error (≈ 5e-4 N·m RMS, twice the others', e²/σ² ≈ 6
+on terrain 1) was eq. 48's damping taken at the previous rate (0.46 q̈ N·m;
+:mod:`~terrain_estimation.models.rover_general_model`, "Wheel damping"),
+now taken at the new rate. What remains at the stamp is the **within-window
+swing**: the estimate is the window's mean torque, the truth at the stamp
+(the window's centre) differs from it by the torque's swing inside the
+window, 2.2e-4 N·m RMS on the rear wheel of terrain 1 (1e-4 on the others),
+as large as the mean's error. Through the wheel's gear inertia (1.08
+kg·m²) almost none of a 0.2 s swing becomes acceleration, so the soil
+torque swings with the applied one: ``τ_R(t_c) − τ̄_R ≈ τ_W(t_c) − τ̄_W``
+(correlation 0.996 on terrain 1). That square, from the torque sample
+nearest the stamp (``WindowMeans.wheel_torque_at_stamp``), is averaged over
+5 s like the coupling and added to τ_R's variance (a torque sensor's own
+noise would add its variance: cautious).
+
+**The split** (:func:`split_covariance`, :func:`split_considered`).
+Estimator 3 synthesises F̌_⊥ from Estimator 1's bogie moment (eqs. 86–88):
+the sum F_⊥12 of the bogie wheels is good to 0.027 N on terrain 1, but its
+split gives both wheels one DP/W, and theirs differ with their slips. On
+terrain 1 the split erred by 0.38 N RMS (rear and middle opposite, lag-25
+autocorrelation 0.84) against the 0.3 N floor it had; the bogie wheels' W,
+which the cells see rotated by δ = γ − ε, took ``e sin δ`` of it, and the
+front wheel's F̌_⊥3 (error 0.027 N, white) had the same 0.3 N floor and
+σ 0.144 N from Estimator 1's bogie moment, whose posterior still held
+this step's τ_R increments (quasi-static: ΔM_1fw = Δτ_R1 + Δτ_R2, 0.014
+N·m against an error of 0.003): E1+E3's W e²/σ² was 2.5, 2.9 and 12 on
+the rear, middle and front wheel. Now the synthesis takes Estimator 1's
+covariance without the step's τ_R increments (they reach the measurements
+a step later, as for τ_R's own variance), the floor only for eq. 88's
+load-proportional split, and the terrain-frame split's error
+``e = F_L1 F_L2 / (F_L1 + F_L2) · k (i1 − i2)`` on the rear wheel, −e on
+the middle: with k = ``split_traction_slope`` (0.55, the slope of DP/W
+against slip of the nominal soil) the stated σ is 0.32 N against 0.38 N.
+As the error is slow, the filter's averaging is undone in the published
+variances (:func:`split_considered`: W gains ``sin²δ σ_e²``, DP ``cos²δ σ_e²``).
 
 **Settling** (:func:`is_settled`). The first estimates after a
 (re)initialisation come from one window's measurements and an equilibrium
@@ -198,6 +231,9 @@ __all__ = [
     "statistical_linearisation",
     "rotated_force_noise_factor",
     "coupling_variance",
+    "nearest_covariance",
+    "split_considered",
+    "split_covariance",
 ]
 
 
@@ -505,3 +541,51 @@ def coupling_variance(inertia: float, acceleration: ArrayLike, acceleration_var:
 def is_settled(steps_since_start: int, settle_steps: int) -> bool:
     """True once ``settle_steps`` updates have run since the last (re)initialisation."""
     return steps_since_start >= settle_steps
+
+
+def nearest_covariance(cov: ArrayLike) -> Array:
+    """``cov`` symmetrised with its negative eigenvalues set to 0 (a difference of covariances, e.g. P − Q)."""
+    c = np.asarray(cov, dtype=float)
+    c = 0.5 * (c + c.T)
+    values, vectors = np.linalg.eigh(c)
+    out: Array = (vectors * np.maximum(values, 0.0)) @ vectors.T
+    return out
+
+
+def split_covariance(axial: ArrayLike, slip: ArrayLike, slip_var: ArrayLike, traction_slope: float) -> Array:
+    """Covariance (3, 3) of Estimator 3's error in splitting F_⊥12 between the bogie wheels at one DP/W.
+
+    The terrain-frame split (:func:`~terrain_estimation.models.rover_estimators.synthesised_perpendicular_forces`)
+    gives the rear and middle wheel the same traction angle φ = atan(DP/W); their own
+    angles differ by Δφ, and to first order the split errs by
+    ``e = F_L1 F_L2 / (F_L1 + F_L2) Δφ`` on the rear wheel and ``−e`` on the
+    middle one (the sum F_⊥12 is not touched). Δφ is the two wheels' slip
+    difference times the soil's slope of DP/W against slip,
+    ``Δφ ≈ k (i1 − i2)`` (module docstring, "The split"), with
+    ``(i1 − i2)²`` less the two slip variances (an unbiased square; floored at 0).
+    """
+    f = np.asarray(axial, dtype=float)
+    i = np.asarray(slip, dtype=float)
+    v = np.asarray(slip_var, dtype=float)
+    out = np.zeros((3, 3))
+    total = float(f[0] + f[1])
+    if traction_slope <= 0.0 or f[0] <= 0.0 or f[1] <= 0.0:
+        return out
+    d = float(i[0] - i[1])
+    var = traction_slope * traction_slope * max(d * d - float(v[0] + v[1]), 0.0)
+    lever = float(f[0] * f[1]) / total
+    out[:2, :2] = lever * lever * var * np.array([[1.0, -1.0], [-1.0, 1.0]])
+    return out
+
+
+def split_considered(load_var: Array, pull_var: Array, delta: Array, split_var: Array) -> tuple[Array, Array]:
+    """W and DP variances with Estimator 3's split error of F̌_⊥ (variance ``split_var``, (3,)) considered.
+
+    The cells' forces (F_L, F_⊥) are (W, DP) rotated by δ = γ − ε, so an error
+    e of F̌_⊥ moves W by ``e sin δ`` and DP by ``e cos δ``; the error is as slow
+    as the terrain (the slips' difference), which the filter, taking it for
+    white noise in R, averages away.
+    """
+    s = np.sin(np.asarray(delta, dtype=float))
+    v = np.asarray(split_var, dtype=float)
+    return load_var + s * s * v, pull_var + (1.0 - s * s) * v

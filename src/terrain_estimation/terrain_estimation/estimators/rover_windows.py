@@ -73,6 +73,7 @@ class _Window:
     """
 
     index: int
+    centre: float = math.nan  # the window's centre, where its estimate is stamped (s)
     imu_n: int = 0
     force_x_sum: float = 0.0
     force_z_sum: float = 0.0
@@ -82,6 +83,7 @@ class _Window:
     torque_sum: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     joint_first: tuple[float, float, Array] | None = None  # (t, bogie, wheel angles)
     joint_last: tuple[float, float, Array] | None = None
+    torque_centre: tuple[float, list[float]] | None = None  # (distance to the centre, torques) of the nearest sample
     speed_n: int = 0
     speed_sum: float = 0.0
     cell_n: list[int] = field(default_factory=lambda: [0, 0, 0])
@@ -98,8 +100,12 @@ class _Window:
         self.joint_n += 1
         self.bogie_sum += bogie
         total = self.torque_sum
-        for j, torque in enumerate(torques.tolist()):
+        values = torques.tolist()
+        for j, torque in enumerate(values):
             total[j] += torque
+        gap = abs(t - self.centre)
+        if self.torque_centre is None or gap < self.torque_centre[0]:
+            self.torque_centre = (gap, values)
         sample = (t, bogie, angles)
         if self.joint_first is None:
             self.joint_first = sample
@@ -127,6 +133,10 @@ class WindowMeans:
         self.pitch_rate = w.pitch_rate / w.imu_n
         self.bogie_angle = w.bogie_sum / w.joint_n
         self.wheel_torque = np.array(w.torque_sum) / w.joint_n
+        # The applied torques of the sample nearest the window's centre (the stamp), for τ_R's within-window swing.
+        self.wheel_torque_at_stamp = (
+            self.wheel_torque.copy() if w.torque_centre is None else np.array(w.torque_centre[1], dtype=float)
+        )
         self.forward_speed = w.speed_sum / w.speed_n
         self.axial_force = np.array(w.axial_sum) / self.cell_n
         self.perpendicular_force = np.array(w.perpendicular_sum) / self.cell_n
@@ -278,7 +288,7 @@ class SensorWindows:
             return None
         window = self._open.get(index)
         if window is None:
-            window = self._open[index] = _Window(index)
+            window = self._open[index] = _Window(index, self._window_end(index) - 0.5 * self.config.step_s)
         return window
 
     def _close_ready(self) -> None:

@@ -83,7 +83,10 @@ class MeasurementErrorFloors:
             terrains 1–3). Default 0.005 rad.
         load_cell: (N), default 0.
         synthesised_force: eq. 88 splits F_⊥12 in proportion to the loads,
-            which DP does not follow (N); default 0.3 N.
+            which DP does not follow (N); default 0.3 N. Added only with
+            ``perpendicular_split = "load_cell"``: the terrain-frame split's
+            error is modelled from the slips
+            (:func:`~terrain_estimation.estimators.rover_noise.split_covariance`).
     """
 
     wheel_rate: float = 0.0
@@ -118,9 +121,16 @@ class GeneralProcessNoise:
     against the front's 1.4 (one R scale for the three).
 
     Attributes:
-        wheel_rate: eq. 49 with the step's mean torque; covers the mismatch
-            of the Euler step and the averaged input: 5e-3 N·m of torque over
-            0.2 s on I_wg = 1.082 kg·m² is 1e-3 rad/s.
+        wheel_rate: eq. 49 with the step's mean torque; covers what the
+            window-mean torque balance leaves (the damping is taken at the
+            new rate, :class:`~terrain_estimation.models.rover_general_model.GeneralEstimatorModel`):
+            the window-mean balance's residual, 1.4–1.7e-4 N·m RMS on the
+            simulated terrain 1, over 0.2 s on I_wg = 1.082 kg·m² is 2.6–3.1e-5
+            rad/s; 3e-5 rad/s, matched to the innovations. At the 1e-3 of the
+            explicit Euler step the matched scale sat at its floor (1e-3) and
+            τ_R's published σ on it (3.4e-4 N·m); from 1e-4 the scale needed
+            tens of seconds to come down (σ 5.7e-4 over the first 10 s, on
+            errors of 1–3e-4).
         resistive_torque: eq. 50, τ_R follows W and i: ∂τ_R/∂W ≈ 0.03 m times
             ≈ 0.3 N of load change per step, plus slip changes; 0.01 N·m.
         pitch, bogie_angle: eqs. 51–52 are exact to the third derivative;
@@ -160,7 +170,7 @@ class GeneralProcessNoise:
             to the innovations (:mod:`terrain_estimation.estimators.rover_noise`).
     """
 
-    wheel_rate: float = 1.0e-3
+    wheel_rate: float = 3.0e-5
     resistive_torque: float = 0.01
     pitch: float = 1.0e-5
     bogie_angle: float = 1.0e-5

@@ -337,6 +337,14 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
         1.0,
         1000.0,
     ),
+    ParamSpec(
+        "filter.split_traction_slope",
+        _EC.split_traction_slope,
+        "[-] Estimator 3: slope of DP/W against slip of the soil (nominal [RB] Table II soil: 0.55); the bogie "
+        "wheels' slip difference times it sizes the error of splitting F_perp12 at one DP/W; 0 disables",
+        0.0,
+        100.0,
+    ),
     ParamSpec("filter.ukf_alpha", _EC.ukf_alpha, "[-] UKF sigma-point spread alpha", 1e-3, 10.0),
     ParamSpec("filter.ukf_beta", _EC.ukf_beta, "[-] UKF beta (2: Gaussian prior)", 0.0, 10.0),
     ParamSpec(
@@ -645,6 +653,7 @@ CONFIG_PARAMETERS: dict[str, str] = {
     "noise_matching": "filter.noise_matching, filter.noise_matching_*",
     "contact_angle_bias": "filter.contact_angle_bias, filter.contact_angle_bias_from_repeat_pass, "
     "filter.contact_angle_bias_memory",
+    "split_traction_slope": "filter.split_traction_slope",
     "settle_steps": "estimator.settle_steps",
     "sinkage": "estimator.sinkage, soil.*",
 }
@@ -704,6 +713,7 @@ def estimator_config(values: Mapping[str, ParamValue]) -> RoverEstimatorConfig:
             from_repeat_pass=bool(values["filter.contact_angle_bias_from_repeat_pass"]),
             memory_steps=_f(values, "filter.contact_angle_bias_memory"),
         ),
+        split_traction_slope=_f(values, "filter.split_traction_slope"),
         settle_steps=int(values["estimator.settle_steps"]),
         sinkage=SinkageSoil(
             enabled=bool(values["estimator.sinkage"]),
