@@ -9,6 +9,9 @@
 * :mod:`~terrain_analysis.batch.worker_setup` — a function run once in every
   worker, including restarted ones (``Engine.setup_workers``: a pool's
   ``initializer``).
+* :mod:`~terrain_analysis.batch.forkserver_preload` — what the forkserver the
+  local workers are forked from imports and warms once
+  (:func:`~terrain_analysis.batch.engine.preload_workers`).
 * :mod:`~terrain_analysis.batch.bags` — what ``terrain-batch`` does with one
   bag: vehicle detection, estimation and/or diagnosis, the resumability
   fingerprint and the summary row.

@@ -33,7 +33,18 @@ What the engine guarantees:
   single-threaded worker *process* per core (the estimators hold the GIL),
   its dashboard on a free port, BLAS/OpenMP threads pinned to 1 by Dask's
   nanny, and each worker given one task at a time (so that a worker dying
-  under a task blames that task only).
+  under a task blames that task only);
+* **warm workers** — where Python has the ``forkserver`` start method
+  (Linux, macOS), the local workers are forked from a forkserver that
+  imported ``distributed`` once and anything :func:`preload_workers` named
+  (``"terrain_analysis.tools.qc_runs"``, or a warm-up such as
+  ``"terrain_estimation.estimators.soil_stiffness_sckf:warm_up"``), so that
+  the imports and numba's compilation or cache loads are paid once per
+  client process, not once per worker (nor again for the next cluster).
+  The forkserver starts with the environment Dask's nanny gives a spawned
+  worker (``OMP_NUM_THREADS=1``, ``PYTHONHASHSEED``, ...): a forked worker
+  computes what a spawned one does. :meth:`Engine.setup_workers` stays the
+  guarantee (a preload entry that fails is only skipped).
 
 Functions and their arguments must be picklable (module-level functions of an
 installed package: the workers import them by name); on a remote cluster the
@@ -53,9 +64,61 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import IO, Any, Generic, TypeVar
 
-__all__ = ["Engine", "EngineError", "Progress", "Task", "TaskResult", "map_isolated", "run_isolated"]
+__all__ = [
+    "Engine",
+    "EngineError",
+    "Progress",
+    "Task",
+    "TaskResult",
+    "map_isolated",
+    "preload_workers",
+    "run_isolated",
+]
 
 T = TypeVar("T")
+
+_preload: tuple[str, ...] = ()
+
+
+def preload_workers(*entries: str) -> None:
+    """What the forkserver of this process's local clusters imports before it forks their workers.
+
+    Each entry is ``"module"`` (imported) or ``"module:function"`` (imported, then ``function()`` called
+    without arguments: a warm-up). Effective for the first local cluster this process starts (the
+    forkserver lives as long as the process and keeps what it imported); later calls only matter once a
+    forkserver has to be started again. A speed-up only: the workers' set-up
+    (:meth:`Engine.setup_workers`) must still import what the tasks need.
+    """
+    global _preload
+    _preload = tuple(entries)
+
+
+def _forkserver_workers() -> Callable[[], None] | None:
+    """Local clusters fork their workers from a warm forkserver (module docstring); returns the function that
+    undoes the environment set for the forkserver's start once the cluster runs (None: no forkserver here)."""
+    import multiprocessing
+
+    import dask
+    from distributed.utils import get_mp_context
+
+    from terrain_analysis.batch.forkserver_preload import PRELOAD_ENV
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return None
+    dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"})
+    # Dask's own preload list first (it sets it once per process), then ours: distributed and the entries,
+    # which reach the forkserver through its environment (it starts with the nanny's first worker).
+    get_mp_context().set_forkserver_preload(["distributed", "terrain_analysis.batch.forkserver_preload"])
+    before = os.environ.get(PRELOAD_ENV)
+    os.environ[PRELOAD_ENV] = ",".join(_preload)
+
+    def restore() -> None:
+        if before is None:
+            os.environ.pop(PRELOAD_ENV, None)
+        else:
+            os.environ[PRELOAD_ENV] = before
+
+    return restore
 
 
 class EngineError(RuntimeError):
@@ -277,14 +340,19 @@ class Engine:
         )
         try:
             if self.scheduler is None:
-                self._cluster = distributed.LocalCluster(
-                    n_workers=self.n_local,
-                    threads_per_worker=1,
-                    processes=True,
-                    memory_limit=self.memory_limit,
-                    dashboard_address=":0",  # any free port: never a clash with another cluster's 8787
-                    silence_logs=level,
-                )
+                restore = _forkserver_workers()
+                try:
+                    self._cluster = distributed.LocalCluster(
+                        n_workers=self.n_local,
+                        threads_per_worker=1,
+                        processes=True,
+                        memory_limit=self.memory_limit,
+                        dashboard_address=":0",  # any free port: never a clash with another cluster's 8787
+                        silence_logs=level,
+                    )
+                finally:
+                    if restore is not None:
+                        restore()
                 self._client = distributed.Client(self._cluster)
             elif self.scheduler.endswith(".json"):
                 self._client = distributed.Client(scheduler_file=self.scheduler, timeout="30s")

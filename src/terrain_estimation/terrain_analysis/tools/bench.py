@@ -69,6 +69,10 @@ One run prints, side by side (``make bench``):
    ``predict``/``update``, as before the compiled EKF step; the SCKF compiled as before) and after (both
    compiled, the default). Wall time, CPU time of the workers, and the largest difference between the
    two runs' k_s errors (the same rides, the same filters to rounding).
+   7b. **Start-up** (``--only startup``; issue 23's "start-up under 1 s to the first message with a warm
+   cache"): for every vehicle, a fresh ``python`` to the first estimate ``terrain-estimate`` keeps from its
+   shipped bag (:mod:`~terrain_analysis.tools.bench_startup`), CPU and wall seconds, median of the repetitions
+   after an untimed run.
 8. **Machine**: CPU count and load average (other processes on the CPUs
    preempt long steps first, so a p90 far above the median usually means a
    busy machine), Python, numpy, ``OPENBLAS_NUM_THREADS`` (``make`` sets it to
@@ -112,6 +116,7 @@ from terrain_analysis.tools.bench_replay import bench_replay, bench_skid_replay,
 from terrain_analysis.tools.bench_sim2real import SIM2REAL_CASES, bench_diagnosis_scaling, bench_sim2real
 from terrain_analysis.tools.bench_sim2real import format_diagnosis_scaling as _format_diagnosis_scaling
 from terrain_analysis.tools.bench_sim2real import format_sim2real as _format_sim2real
+from terrain_analysis.tools.bench_startup import bench_startup, format_startup
 from terrain_analysis.tools.bench_vehicles import (
     ROVER_ROW_LABELS,
     SKID_ROW_LABELS,
@@ -210,13 +215,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--bags", metavar="DIR", default=str(BAGS_DIR), help="directory of the recorded bags")
     parser.add_argument(
         "--only",
-        choices=("skid_replay", "replay", "qc_monte_carlo", "diagnosis_scaling"),
+        choices=("skid_replay", "replay", "qc_monte_carlo", "diagnosis_scaling", "startup"),
         help=(
             "run one section only: skid_replay = the skid-steer bags, compiled step against the previous one; "
             "replay = the quarter-car, LRV and rover bags, bulk decoding and checks against one message at a time; "
             "qc_monte_carlo = the 100-run quarter-car Monte Carlo (reproduce-qc case 1, every filter) on 2 "
             "processes, the numpy EKF against the compiled one; diagnosis_scaling = the sim-to-real diagnosis of "
-            "15, 30 and 60 s bags per vehicle (CPU per bag second, optimiser evaluations, ratio to linear)"
+            "15, 30 and 60 s bags per vehicle (CPU per bag second, optimiser evaluations, ratio to linear); startup = "
+            "a fresh process to the first estimate of terrain-estimate, every vehicle (warm cache)"
         ),
     )
     args = parser.parse_args(argv)
@@ -227,6 +233,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "skid_replay": (lambda: bench_skid_replay(cfg, Path(args.bags)), format_skid_replay),
         "replay": (lambda: bench_replay(cfg, Path(args.bags)), format_replay),
         "qc_monte_carlo": (lambda: bench_qc_monte_carlo(cfg), format_qc_monte_carlo),
+        "startup": (lambda: bench_startup(cfg, Path(args.bags)), format_startup),
         "diagnosis_scaling": (
             lambda: {"rows": bench_diagnosis_scaling(cfg)},
             lambda f: "\n".join(_format_diagnosis_scaling(f["rows"])),
