@@ -40,7 +40,8 @@ Open-loop replay on the bag's inputs
     effect's most direct signature (without these channels it showed only
     through the tilt of the specific force, and 5 of 6 withheld bags read
     "no significant gap"). Integration: classical RK4, ``substeps`` per
-    sensor period (2 ms as the plant), raised where the slip dynamics are
+    sensor period (2 ms as the plant; the diagnosis's :func:`build_model`
+    uses :data:`DIAGNOSIS_STEP`, 5 ms), raised where the slip dynamics are
     stiff (λ_max Δt ≤ 2 as the plant), the wheel speed linear in time between
     samples.
 
@@ -124,6 +125,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from terrain_analysis.sim2real import skid_steer_replay
 from terrain_analysis.sim2real.skid_steer_bag import (
     SkidSteerBagData,
     bag_data_from_arrays,
@@ -131,7 +133,7 @@ from terrain_analysis.sim2real.skid_steer_bag import (
     wheel_speeds_at,
 )
 from terrain_analysis.sim2real.skid_steer_kernel import Physics, Sensing, replay_imu
-from terrain_analysis.sim2real.skid_steer_replay import NUISANCE, SkidSteerReplay
+from terrain_analysis.sim2real.skid_steer_replay import DIAGNOSIS_STEP, NUISANCE, SkidSteerReplay
 from terrain_analysis.sim2real.skid_steer_vehicle import (
     ReplayVehicle,
     Suspension,
@@ -142,6 +144,7 @@ from terrain_analysis.sim2real.skid_steer_vehicle import (
 from terrain_analysis.sim2real.where import Sim2RealError
 
 __all__ = [
+    "DIAGNOSIS_STEP",
     "NUISANCE",
     "Physics",
     "ReplayVehicle",
@@ -179,6 +182,7 @@ def build_model(
     warmup: float = 1.0,
     wheel_speed_timing: str = "period_mean",
     joints: tuple[str, str] | None = None,
+    integration_step: float | None = None,
 ) -> SkidSteerReplay:
     """The replay model of a skid-steer bag for :func:`terrain_analysis.sim2real.attribution.attribute`.
 
@@ -194,6 +198,7 @@ def build_model(
         warmup: seconds left out at the start.
         wheel_speed_timing: ``period_mean`` or ``instantaneous`` (module docstring).
         joints: (left, right) joint names (default: the config's ``joints.*``).
+        integration_step: largest RK4 step of the replay (s; default :data:`DIAGNOSIS_STEP`, read at the call).
     """
     if vehicle is None and config is not None and _config_kind(config) == "husky":
         from terrain_analysis.sim2real.husky_model import build_husky_model
@@ -222,7 +227,8 @@ def build_model(
             f"bag {str(bag)!r}: {data.t[-1]:.2f} s of overlapping imu and joint_states data; the diagnosis needs "
             f"at least the {warmup:g} s warm-up plus 2 s"
         )
-    model = SkidSteerReplay(data, vehicle, nuisance=nuisance, warmup=warmup)
+    step = skid_steer_replay.DIAGNOSIS_STEP if integration_step is None else float(integration_step)
+    model = SkidSteerReplay(data, vehicle, nuisance=nuisance, warmup=warmup, integration_step=step)
     if progress is not None:
         progress(
             f"replay model: {len(data.t)} IMU samples over {data.t[-1]:.1f} s; noise budget "

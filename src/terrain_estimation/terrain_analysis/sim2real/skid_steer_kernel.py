@@ -27,80 +27,94 @@ _P_GPX, _P_GN, _P_RELAX, _P_INV_LX, _P_INV_LY, _P_RELAX_FLOOR, _P_LOADDYN = rang
 _P_KR, _P_CR, _P_KP, _P_CP, _P_ROLL_DRIVE, _P_PITCH_DRIVE, _P_IR, _P_IP, _P_ROLL_ARM, _P_PITCH_ARM = range(16, 26)
 _P_GPY, _P_BULL, _P_INV_VB = range(26, 29)
 _N_P = 29
+#: Rows of the derivative's work array (per wheel): contact speeds, slips, loads, rolling resistance, wheel speed,
+#: tire forces, lateral sliding resistance. Indexed in two dimensions, not through row views: numba makes each view
+#: a reference-counted array on every call (≈ 10 % of the replay's time).
+_W_CVX, _W_CVY, _W_SX, _W_SY, _W_LOAD, _W_RPL, _W_OM, _W_FX, _W_FY, _W_SLIDING = range(10)
 #: Lateral contact speed over which the soil's lateral resistance (turning_resistance) builds up (m/s): the
 #: catalogue's stated form F_b = −c_b F_z tanh(v_y / 0.05 m/s).
 TURNING_RESISTANCE_SPEED = 0.05
 
 
-@compiled
+@compiled(error_model="numpy")
+def _earlier_equal(values, row, i):
+    """Index of the first of ``values[:i]`` equal to ``values[i]`` (i: none). A function of equal arguments is
+    equal: the kernel takes a wheel's tanh from an earlier wheel with the same argument (the wheels of one side
+    share their longitudinal contact speed, those of one axle their lateral one), bit for bit the same value."""
+    x = values[row, i]
+    for j in range(i):
+        if values[row, j] == x:
+            return j
+    return i
+
+
+@compiled(error_model="numpy")
 def _derivative(s, oml, omr, hfx, hfy, p, wx, wy, side, static, lpfx, lpfy, ru, pu, out, work):
     """State derivative (into ``out``); returns (f_x, f_y, roll accel, pitch accel). Plant's equations.
 
     State: vx, vy, r, roll, roll rate, pitch, pitch rate, lagged F_x (n), F_y (n), heading ψ from the start.
-    Gravity in the body frame: the plane's (g_px, g_py) at the start heading turned by ψ.
+    Gravity in the body frame: the plane's (g_px, g_py) at the start heading turned by ψ (on level ground both
+    are zero whatever ψ: no trigonometry). ``error_model="numpy"``: no division here can be by zero (speeds are
+    floored, masses and inertias positive), so numba's per-division zero checks only cost time.
     """
     n = wx.shape[0]
     vx, vy, r = s[0], s[1], s[2]
-    heading = s[7 + 2 * n]
-    ch = math.cos(heading)
-    sh = math.sin(heading)
-    gbx = p[_P_GPX] * ch + p[_P_GPY] * sh
-    gby = -p[_P_GPX] * sh + p[_P_GPY] * ch
+    if p[_P_GPX] != 0.0 or p[_P_GPY] != 0.0:
+        heading = s[7 + 2 * n]
+        ch = math.cos(heading)
+        sh = math.sin(heading)
+        gbx = p[_P_GPX] * ch + p[_P_GPY] * sh
+        gby = -p[_P_GPX] * sh + p[_P_GPY] * ch
+    else:
+        gbx = 0.0
+        gby = 0.0
     roll, roll_rate, pitch, pitch_rate = s[3], s[4], s[5], s[6]
     radius, cx, ca, mu, floor = p[_P_RADIUS], p[_P_CX], p[_P_CA], p[_P_MU], p[_P_FLOOR]
     mass = p[_P_MASS]
     relax = p[_P_RELAX] > 0.5
     loaddyn = p[_P_LOADDYN] > 0.5
-    cvx = work[0]
-    cvy = work[1]
-    sx = work[2]
-    sy = work[3]
-    load = work[4]
-    rpl = work[5]
-    om = work[6]
     for i in range(n):
-        cvx[i] = vx - wy[i] * r
-        cvy[i] = vy + wx[i] * r
-        om[i] = oml if side[i] == 0 else omr
-        rolling = radius * om[i]
+        work[_W_CVX, i] = vx - wy[i] * r
+        work[_W_CVY, i] = vy + wx[i] * r
+        work[_W_OM, i] = oml if side[i] == 0 else omr
+        rolling = radius * work[_W_OM, i]
         vr = max(abs(rolling), floor)
-        sx[i] = (rolling - cvx[i]) / vr
-        sy[i] = -cvy[i] / vr
+        work[_W_SX, i] = (rolling - work[_W_CVX, i]) / vr
+        work[_W_SY, i] = -work[_W_CVY, i] / vr
         base = static[i]
         if loaddyn:
             base += -ru[i] * (p[_P_KR] * roll + p[_P_CR] * roll_rate) + pu[i] * (
                 p[_P_KP] * pitch + p[_P_CP] * pitch_rate
             )
-        load[i] = base
-        rpl[i] = p[_P_RR] * math.tanh(cvx[i] * p[_P_INV_RRV])
-    fx = work[7]
-    fy = work[8]
+        work[_W_LOAD, i] = base
+        same = _earlier_equal(work, _W_CVX, i)
+        work[_W_RPL, i] = work[_W_RPL, same] if same < i else p[_P_RR] * math.tanh(work[_W_CVX, i] * p[_P_INV_RRV])
     if relax:
         sum_fx = 0.0
         sum_fy = 0.0
         for i in range(n):
-            fx[i] = s[7 + i]
-            fy[i] = s[7 + n + i]
-            sum_fx += fx[i]
-            sum_fy += fy[i]
+            work[_W_FX, i] = s[7 + i]
+            work[_W_FY, i] = s[7 + n + i]
+            sum_fx += work[_W_FX, i]
+            sum_fy += work[_W_FY, i]
         num = sum_fx
         den = mass
         for i in range(n):
-            load[i] += lpfy[i] * (sum_fy / mass)
+            work[_W_LOAD, i] += lpfy[i] * (sum_fy / mass)
         for i in range(n):
-            num -= rpl[i] * load[i]
-            den += rpl[i] * lpfx[i]
+            num -= work[_W_RPL, i] * work[_W_LOAD, i]
+            den += work[_W_RPL, i] * lpfx[i]
         load_fx = num / den
         for i in range(n):
-            load[i] = max(load[i] + lpfx[i] * load_fx, 0.0)
+            work[_W_LOAD, i] = max(work[_W_LOAD, i] + lpfx[i] * load_fx, 0.0)
     else:
         for i in range(n):
-            load[i] = max(load[i] + lpfx[i] * hfx + lpfy[i] * hfy, 0.0)
+            work[_W_LOAD, i] = max(work[_W_LOAD, i] + lpfx[i] * hfx + lpfy[i] * hfy, 0.0)
     for i in range(n):
         # Brush model (B.4), the closed form of terrain_estimation.models.skid_steer.brush_tire_forces.
-        cx_sx = cx * sx[i]
-        ca_sy = ca * sy[i]
-        mu_fz = mu * load[i]
+        cx_sx = cx * work[_W_SX, i]
+        ca_sy = ca * work[_W_SY, i]
+        mu_fz = mu * work[_W_LOAD, i]
         gamma = math.hypot(cx_sx, ca_sy)
         limit = 3.0 * mu_fz
         if gamma > 0.0 and limit > 0.0:
@@ -111,12 +125,13 @@ def _derivative(s, oml, omr, hfx, hfy, p, wx, wy, side, static, lpfx, lpfy, ru, 
         ssx = cx_sx * scale
         ssy = ca_sy * scale
         if relax:
-            speed = max(max(radius * abs(om[i]), math.hypot(cvx[i], cvy[i])), p[_P_RELAX_FLOOR])
-            out[7 + i] = speed * (ssx - fx[i]) * p[_P_INV_LX]
-            out[7 + n + i] = speed * (ssy - fy[i]) * p[_P_INV_LY]
+            contact = math.hypot(work[_W_CVX, i], work[_W_CVY, i])
+            speed = max(max(radius * abs(work[_W_OM, i]), contact), p[_P_RELAX_FLOOR])
+            out[7 + i] = speed * (ssx - work[_W_FX, i]) * p[_P_INV_LX]
+            out[7 + n + i] = speed * (ssy - work[_W_FY, i]) * p[_P_INV_LY]
         else:
-            fx[i] = ssx
-            fy[i] = ssy
+            work[_W_FX, i] = ssx
+            work[_W_FY, i] = ssy
             out[7 + i] = 0.0
             out[7 + n + i] = 0.0
     sum_x = 0.0
@@ -124,11 +139,13 @@ def _derivative(s, oml, omr, hfx, hfy, p, wx, wy, side, static, lpfx, lpfy, ru, 
     moment = 0.0
     bull = p[_P_BULL]
     for i in range(n):
-        net_x = fx[i] - rpl[i] * load[i]
-        lateral = fy[i]
+        net_x = work[_W_FX, i] - work[_W_RPL, i] * work[_W_LOAD, i]
+        lateral = work[_W_FY, i]
         if bull > 0.0:
             # turning_resistance: the soil's lateral resistance against the wheel's lateral sliding, ∝ its load.
-            lateral -= bull * load[i] * math.tanh(cvy[i] * p[_P_INV_VB])
+            same = _earlier_equal(work, _W_CVY, i)
+            work[_W_SLIDING, i] = work[_W_SLIDING, same] if same < i else math.tanh(work[_W_CVY, i] * p[_P_INV_VB])
+            lateral -= bull * work[_W_LOAD, i] * work[_W_SLIDING, i]
         sum_x += net_x
         sum_y += lateral
         moment += wx[i] * lateral - wy[i] * net_x
@@ -158,7 +175,7 @@ def _derivative(s, oml, omr, hfx, hfy, p, wx, wy, side, static, lpfx, lpfy, ru, 
     return f_x, f_y, roll_acc, pitch_acc
 
 
-@compiled
+@compiled(error_model="numpy")
 def _imu(s, f_x, f_y, roll_acc, pitch_acc, p, out_row):
     """Noise-free IMU (f_x, f_y, f_z, ω_x, ω_y, ω_z) of the plant's ``_measure`` (tilted body with lever arms)."""
     roll, roll_rate, pitch, pitch_rate = s[3], s[4], s[5], s[6]
@@ -178,13 +195,14 @@ def _imu(s, f_x, f_y, roll_acc, pitch_acc, p, out_row):
     out_row[5] = -sr * pitch_rate + cr * cp * r
 
 
-@compiled
+@compiled(error_model="numpy", nogil=True)
 def _replay_kernel(t, omega, x0, p, wx, wy, side, static, lpfx, lpfy, ru, pu, base_dt, stiff_rate):
     """RK4 replay over the sample times ``t`` (M,) with wheel speeds ``omega`` (M, 2); IMU (M, 6) at every sample.
 
     Wheel speeds are linear in time between samples. Steps per interval: enough for ``base_dt``, raised to keep
     λ_max Δt ≤ 2 with λ_max = stiff_rate / V_r (the plant's stiffness bound without the wheel term).
-    The load-transfer hold is the specific force of the first RK4 stage (the plant's rule).
+    The load-transfer hold is the specific force of the first RK4 stage (the plant's rule). Releases the GIL
+    (``nogil``): replays of different physics (a Jacobian's columns) can run on several cores from threads.
     """
     m = t.shape[0]
     n = wx.shape[0]
@@ -198,7 +216,7 @@ def _replay_kernel(t, omega, x0, p, wx, wy, side, static, lpfx, lpfy, ru, pu, ba
     k3 = np.empty(size)
     k4 = np.empty(size)
     tmp = np.empty(size)
-    work = np.empty((9, n))
+    work = np.empty((10, n))
     hfx = 0.0
     hfy = 0.0
     # Initial reading.
@@ -207,6 +225,10 @@ def _replay_kernel(t, omega, x0, p, wx, wy, side, static, lpfx, lpfy, ru, pu, ba
     )
     hfx, hfy = f_x, f_y
     _imu(s, f_x, f_y, ra, pa, p, out[0])
+    # After the first interval, a reading's derivative is the next interval's first stage (same state, wheel
+    # speeds and load hold; the first sample's reading used no hold): k1 holds it, read_fx/fy its specific force.
+    reuse = False
+    read_fx, read_fy = f_x, f_y
     radius = p[_P_RADIUS]
     floor = p[_P_FLOOR]
     relax = p[_P_RELAX] > 0.5
@@ -229,9 +251,12 @@ def _replay_kernel(t, omega, x0, p, wx, wy, side, static, lpfx, lpfy, ru, pu, ba
             omr1 = omega[k, 1] + a1 * (omega[k + 1, 1] - omega[k, 1])
             oml2 = omega[k, 0] + a2 * (omega[k + 1, 0] - omega[k, 0])
             omr2 = omega[k, 1] + a2 * (omega[k + 1, 1] - omega[k, 1])
-            f_x, f_y, ra, pa = _derivative(
-                s, oml0, omr0, hfx, hfy, p, wx, wy, side, static, lpfx, lpfy, ru, pu, k1, work
-            )
+            if j == 0 and reuse:
+                f_x, f_y = read_fx, read_fy
+            else:
+                f_x, f_y, ra, pa = _derivative(
+                    s, oml0, omr0, hfx, hfy, p, wx, wy, side, static, lpfx, lpfy, ru, pu, k1, work
+                )
             hfx, hfy = f_x, f_y
             for i in range(size):
                 tmp[i] = s[i] + 0.5 * h * k1[i]
@@ -248,6 +273,8 @@ def _replay_kernel(t, omega, x0, p, wx, wy, side, static, lpfx, lpfy, ru, pu, ba
             s, omega[k + 1, 0], omega[k + 1, 1], hfx, hfy, p, wx, wy, side, static, lpfx, lpfy, ru, pu, k1, work
         )
         _imu(s, f_x, f_y, ra, pa, p, out[k + 1])
+        reuse = True
+        read_fx, read_fy = f_x, f_y
         if not math.isfinite(out[k + 1, 0] + out[k + 1, 1] + out[k + 1, 5]):
             out[k + 1 :, :] = 0.0
             return out, False

@@ -11,7 +11,9 @@
   replay-model evaluations (every call of the fits' residual function, cross-fits included), CPU per
   evaluation, the CPU outside the evaluations, and the ratio of CPU per bag second to the shortest
   bag's (1.00 = linear; within 10 % is the issue's rule). The stages' CPU (input checks, estimator,
-  model build, attribution, where table) show which part grows.
+  model build, attribution, where table) show which part grows. For the skid steer also the replays (runs of
+  the dynamics: evaluations whose physics the replay cache does not hold yet) and their CPU, inside the
+  evaluations' CPU.
 
 Nothing asserts a time: the figures depend on the machine and its load.
 """
@@ -147,6 +149,7 @@ def _metered(meter: _Meter) -> Iterator[None]:
     """Time the diagnosis's stages and count the replay-model evaluations of every fit."""
     import terrain_analysis.sim2real.diagnose as diag
     import terrain_analysis.sim2real.fitting as fitting
+    import terrain_analysis.sim2real.skid_steer_replay as skid_replay
     import terrain_estimation.tools.estimate as estimate
 
     patches: list[tuple[Any, str]] = [
@@ -156,6 +159,7 @@ def _metered(meter: _Meter) -> Iterator[None]:
         (diag, "where_table"),
         (estimate, "estimate_bag"),
         (fitting._Problem, "residuals"),
+        (skid_replay, "replay_imu"),
     ]
     saved = [(owner, name, getattr(owner, name)) for owner, name in patches]
     try:
@@ -184,7 +188,9 @@ def _diagnose_metered(bag: str, vehicle: str, out: str | None) -> dict[str, Any]
         "cpu_s": cpu,
         "evaluations": meter.calls.get("residuals", 0),
         "eval_cpu_s": meter.cpu.get("residuals", 0.0),
-        "stages": {k: v for k, v in meter.cpu.items() if k != "residuals"},
+        "replays": meter.calls.get("replay_imu", 0),
+        "replay_cpu_s": meter.cpu.get("replay_imu", 0.0),
+        "stages": {k: v for k, v in meter.cpu.items() if k not in ("residuals", "replay_imu")},
         "fits": 1 + len(a.ranking) + len(a.pairs),
         "samples": a.train_samples + a.test_samples,
         "verdict": a.verdict,
@@ -298,7 +304,8 @@ def format_diagnosis_scaling(rows: list[dict[str, Any]]) -> list[str]:
     lines = [
         "Sim-to-real diagnosis cost against bag length (one process per bag, after an untimed warm-up diagnosis)",
         f"  {'vehicle':<12}{'bag s':>6}{'CPU s':>8}{'wall s':>8}{'CPU/bag s':>10}{'×linear':>8}"
-        f"{'evals':>7}{'×evals':>7}{'ms/eval':>8}{'eval CPU':>9}{'other':>7}{'fits':>5}  stages (CPU s) → verdict",
+        f"{'evals':>7}{'×evals':>7}{'ms/eval':>8}{'eval CPU':>9}{'other':>7}{'fits':>5}{'replays':>8}{'CPU':>6}"
+        "  stages (CPU s) → verdict",
     ]
     for r in rows:
         if "skipped" in r:
@@ -308,7 +315,8 @@ def format_diagnosis_scaling(rows: list[dict[str, Any]]) -> list[str]:
         lines.append(
             f"  {r['vehicle']:<12}{r['bag_s']:>6.0f}{r['cpu_s']:>8.1f}{r['wall_s']:>8.1f}{r['cpu_per_bag_s']:>10.3f}"
             f"{r['ratio_to_linear']:>8.2f}{r['evaluations']:>7d}{r['eval_ratio']:>7.2f}{r['cpu_per_eval_ms']:>8.1f}"
-            f"{r['eval_cpu_s']:>9.1f}{r['cpu_s'] - r['eval_cpu_s']:>7.1f}{r['fits']:>5d}  {stages} → "
+            f"{r['eval_cpu_s']:>9.1f}{r['cpu_s'] - r['eval_cpu_s']:>7.1f}{r['fits']:>5d}{r.get('replays', 0):>8d}"
+            f"{r.get('replay_cpu_s', 0.0):>6.1f}  {stages} → "
             f"{r['verdict'][:60]}"
         )
     return lines
