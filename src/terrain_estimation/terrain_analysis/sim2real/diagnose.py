@@ -17,6 +17,15 @@ Only the bag and the vehicle's config are read: nothing of how the bag was made.
 The bag's inputs are checked first (:mod:`~terrain_analysis.sim2real.inputs`:
 the estimators' input checks, plausibility bounds, time gaps); the replay and
 the estimator read only the messages that pass, of one gap-free segment.
+
+**Threads.** The diagnosis runs under one BLAS thread (threadpoolctl). Its
+matrices are small (Jacobians of a few thousand rows by a few columns); with
+OpenBLAS's threads the CPU of a 60 s skid-steer bag was 48 s against 25.5 s on
+one thread (2 cores, loaded), the cost grew faster than the bag (×1.3 per
+bag-second from 15 to 60 s, the threads' spinning charged to the process),
+and the optimiser's evaluations depended on the core count (2624 against
+2604). Dask's workers already run one BLAS thread each, so a verdict is the
+same from ``terrain-sim2real``, ``terrain-batch`` and ``validate-sim2real``.
 """
 
 from __future__ import annotations
@@ -32,6 +41,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
 
 from terrain_analysis.sim2real.attribution import AttributionReport, AttributionSettings, attribute
 from terrain_analysis.sim2real.inputs import GAP_MIN_S, InputReport, screen_bag
@@ -250,7 +260,9 @@ def diagnose(
                 progress(text.replace(str(screened), f"{bag}" + (f" ({where})" if where else "")))
 
         try:
-            result = _diagnose(screened, vehicle, namespace, config, settings or AttributionSettings(), said)
+            # One BLAS thread (module docstring, "Threads"): the same optimiser path on any core count.
+            with threadpool_limits(limits=1, user_api="blas"):
+                result = _diagnose(screened, vehicle, namespace, config, settings or AttributionSettings(), said)
         except ValueError as exc:  # Sim2RealError, or the engine's "too little data": say what the checks left
             raise Sim2RealError(
                 f"{str(exc).replace(str(screened), str(bag))}; after the input checks, {inputs.summary()}"
