@@ -35,7 +35,7 @@ import argparse
 import gc
 import math
 import sys
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -109,6 +109,8 @@ class EstimationRun:
     outputs: list[tuple[str, Any, int]] = field(default_factory=list)  # (topic, msg, log time ns)
     inputs_read: int = 0
     truth_loader: Callable[[EstimationRun], dict[str, list[Any]]] | None = field(default=None, repr=False)
+    # (estimate topic, truth message) of the bag's ground truth in recorded order, read anew at each call
+    truth_reader: Callable[[], Iterator[tuple[str, Any]]] | None = field(default=None, repr=False)
     truth_fields: dict[str, tuple[str, ...]] = field(default_factory=dict)  # estimate topic -> compared fields
     rejected: dict[str, int] = field(default_factory=dict)  # input check reason -> messages dropped
     accepted: int = 0  # input messages that passed the checks (or all read, without checks)
@@ -185,13 +187,17 @@ def run_adapter(
         reason = f"{topic}: bytes do not decode as {types.get(topic, 'its type')}"
         run.rejected[reason] = run.rejected.get(reason, 0) + 1
 
+    def read_truth() -> Iterator[tuple[str, Any]]:
+        for item in read_bag(bag, list(truth_topics), types=types, on_undecodable=undecodable):
+            yield truth_topics[item.topic], item.msg
+
     def load_truth(run: EstimationRun) -> dict[str, list[Any]]:
         truth: dict[str, list[Any]] = {}
-        for item in read_bag(bag, list(truth_topics), types=types, on_undecodable=undecodable):
-            truth.setdefault(truth_topics[item.topic], []).append(item.msg)
+        for topic, msg in read_truth():
+            truth.setdefault(topic, []).append(msg)
         return truth
 
-    run.truth_loader = load_truth
+    run.truth_loader, run.truth_reader = load_truth, read_truth
     # Every topic's type is checked (``types`` holds the truth topics too) before any message is read.
     # ``previous``: the truth decoded in the same pass, as the previous path did (benchmarks).
     read = list(inputs) + (list(truth_topics) if previous else [])
@@ -339,6 +345,63 @@ def truth_errors(
     }
 
 
+def streamed_truth_errors(run: EstimationRun) -> dict[str, dict[str, tuple[float, float, float]]]:
+    """:func:`truth_errors` of every estimate topic of ``run``, reading the ground truth in one streaming pass.
+
+    The truth is never held whole (an hour of a 100 Hz truth topic is a few hundred MB of messages): each
+    estimate gets the compared fields of the latest truth message stamped at or before it while the truth
+    goes by in recorded order (stamps ascending, as :func:`truth_errors`' search assumes), and the errors
+    are then formed in the estimates' order, so the figures are :func:`truth_errors`' to the bit. A truth
+    already in memory (``run.truth`` read, or decoded during the run) is used as it is.
+    """
+    topics = sorted({t for t, _, _ in run.outputs})
+    fields = {t: tuple(run.truth_fields.get(t, ())) for t in topics}
+    stamps = {t: np.array([_stamp(m) for m in run.messages(t)]) for t in topics}
+    order = {t: np.argsort(stamps[t], kind="stable") for t in topics}
+    refs: dict[str, list[dict[str, float] | None]] = {t: [None] * len(stamps[t]) for t in topics}
+    cursor = dict.fromkeys(topics, 0)
+    current: dict[str, dict[str, float] | None] = dict.fromkeys(topics)
+    if "_truth" in run.__dict__ or run.truth_reader is None:
+        items: Iterable[tuple[str, Any]] = ((t, m) for t, ms in run.truth.items() for m in ms)
+    else:
+        items = run.truth_reader()
+    for topic, msg in items:
+        if topic not in refs:
+            continue
+        s, k, idx = _stamp(msg), cursor[topic], order[topic]
+        t_est, ref = stamps[topic], refs[topic]
+        while k < idx.size and t_est[idx[k]] < s:  # these estimates lie before this truth message
+            ref[idx[k]] = current[topic]
+            k += 1
+        cursor[topic] = k
+        values = numeric_fields(msg)
+        current[topic] = {name: values[name] for name in fields[topic]}
+    out: dict[str, dict[str, tuple[float, float, float]]] = {}
+    for topic in topics:
+        idx, ref = order[topic], refs[topic]
+        for k in range(cursor[topic], idx.size):
+            ref[idx[k]] = current[topic]
+        errors: dict[str, list[float]] = {}
+        last_ref: dict[str, float] = {}
+        for est, r in zip(run.messages(topic), ref, strict=True):
+            if r is None:
+                continue
+            values = numeric_fields(est)
+            for name in fields[topic]:
+                errors.setdefault(name, []).append(values[name] - r[name])
+            last_ref = r
+        out[topic] = {
+            name: (
+                math.sqrt(float(np.mean(np.square(e)))),
+                abs(e[-1]),
+                abs(e[-1]) / abs(last_ref[name]) if last_ref[name] else math.inf,
+            )
+            for name, e in errors.items()
+            if e
+        }
+    return out
+
+
 def check_usable(run: EstimationRun, bag: str | Path, namespace: str) -> None:
     """Raise :class:`~terrain_estimation.cli.InputError` when ``run`` estimated nothing, saying why.
 
@@ -368,7 +431,7 @@ def check_usable(run: EstimationRun, bag: str | Path, namespace: str) -> None:
 
 
 def _summary_lines(run: EstimationRun) -> Iterator[str]:
-    truth = run.truth  # read now: its undecodable messages belong to the counts below
+    truth_errs = streamed_truth_errors(run)  # read now: its undecodable messages belong to the counts below
     rejected = sum(run.rejected.values())
     yield f"input messages read: {run.inputs_read} ({run.accepted} accepted, {rejected} rejected)"
     for reason, count in sorted(run.rejected.items()):
@@ -391,8 +454,7 @@ def _summary_lines(run: EstimationRun) -> Iterator[str]:
         last = numeric_fields(msgs[-1])
         shown = ", ".join(f"{k}={v:.6g}" for k, v in list(last.items())[:8])
         yield f"  last: {shown}"
-        errs = truth_errors(msgs, truth.get(topic, []), run.truth_fields.get(topic, ()))
-        for name, (rms, final, rel) in errs.items():
+        for name, (rms, final, rel) in truth_errs.get(topic, {}).items():
             # A relative error above 1000 % says the truth is near zero (a sideslip on a straight run), not more.
             pct = f"{100 * rel:.2f} %" if rel <= 10.0 else "truth near 0"
             yield f"  vs ground truth {name}: rms error {rms:.6g}, final error {final:.6g} ({pct})"
