@@ -311,6 +311,21 @@ def _stamp(msg: Any) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
+def _error_figures(
+    errors: Mapping[str, list[float]], last_ref: Mapping[str, float]
+) -> dict[str, tuple[float, float, float]]:
+    """RMS, final absolute and final relative error per field, from the errors in the estimates' order."""
+    return {
+        name: (
+            math.sqrt(float(np.mean(np.square(e)))),
+            abs(e[-1]),
+            abs(e[-1]) / abs(last_ref[name]) if last_ref[name] else math.inf,
+        )
+        for name, e in errors.items()
+        if e
+    }
+
+
 def truth_errors(
     estimates: Sequence[Any], truths: Sequence[Any], fields: Sequence[str]
 ) -> dict[str, tuple[float, float, float]]:
@@ -334,15 +349,7 @@ def truth_errors(
         for name in fields:
             errors.setdefault(name, []).append(values[name] - ref[name])
         last_ref = ref
-    return {
-        name: (
-            math.sqrt(float(np.mean(np.square(e)))),
-            abs(e[-1]),
-            abs(e[-1]) / abs(last_ref[name]) if last_ref[name] else math.inf,
-        )
-        for name, e in errors.items()
-        if e
-    }
+    return _error_figures(errors, last_ref)
 
 
 def streamed_truth_errors(run: EstimationRun) -> dict[str, dict[str, tuple[float, float, float]]]:
@@ -390,15 +397,7 @@ def streamed_truth_errors(run: EstimationRun) -> dict[str, dict[str, tuple[float
             for name in fields[topic]:
                 errors.setdefault(name, []).append(values[name] - r[name])
             last_ref = r
-        out[topic] = {
-            name: (
-                math.sqrt(float(np.mean(np.square(e)))),
-                abs(e[-1]),
-                abs(e[-1]) / abs(last_ref[name]) if last_ref[name] else math.inf,
-            )
-            for name, e in errors.items()
-            if e
-        }
+        out[topic] = _error_figures(errors, last_ref)
     return out
 
 
