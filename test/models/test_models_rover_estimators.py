@@ -99,7 +99,12 @@ def test_free_accelerations_satisfy_the_rows_of_eq_32() -> None:
     terms = kinematic_terms(P, 0.1, -0.2)
     model = GeneralEstimatorModel(P)
     x_next = model.f(x, GeneralInput(torque, terms), 0.2)
-    wheel_acc = (torque - x[G.RESISTIVE_TORQUE] - P.wheel_damping * x[G.WHEEL_RATE]) / P.wheel_gear_inertia
+    # Eq. 49 with the damping at the step's new rate (implicit Euler, models/rover_general_model.py "Wheel
+    # damping": the encoders give window-mean rates): I q̈ = τ_W − τ_R − b_d q̇_new, q̇_new = q̇ + T q̈.
+    new_rate = (x[G.WHEEL_RATE] + 0.2 * (torque - x[G.RESISTIVE_TORQUE]) / P.wheel_gear_inertia) / (
+        1.0 + 0.2 * P.wheel_damping / P.wheel_gear_inertia
+    )
+    wheel_acc = (torque - x[G.RESISTIVE_TORQUE] - P.wheel_damping * new_rate) / P.wheel_gear_inertia
     g_ddot = np.zeros(7)
     g_ddot[[0, 1, 2, 3]] = x_next[list(G.FREE_ACC)]
     g_ddot[4:] = wheel_acc
