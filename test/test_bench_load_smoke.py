@@ -61,3 +61,22 @@ def test_the_collector_reads_the_header_of_every_estimate_type_from_its_bytes():
         msg.header.stamp.sec, msg.header.stamp.nanosec = 1_234_567, 987_654_321
         msg.header.frame_id = frame
         assert bench_load.cdr_header(serialize_message(msg)) == (1_234_567_987_654_321, frame), cls.__name__
+
+
+def test_a_flow_controlled_row_says_when_the_player_went_on_without_an_estimate():
+    from terrain_analysis.tools.bench_load_report import verdicts
+
+    row = {
+        "row": "(e) rover bag max events+take",
+        "case": {"factor": 0.0},
+        "x_real_time": 3.0,
+        "dropped": 0,
+        "estimates": 10,
+        "expected_estimates": 11,
+        "flow_stalls": 0,
+        "flow_stall_s": bench_load.FLOW_STALL_S,
+    }
+    (quiet,) = verdicts([row])
+    assert "went on" not in quiet
+    (stalled,) = verdicts([row | {"flow_stalls": 2}])
+    assert "went on 2 time(s) after 2 s without an estimate" in stalled

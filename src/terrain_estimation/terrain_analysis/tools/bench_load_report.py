@@ -138,6 +138,12 @@ def verdicts(rows: Sequence[dict[str, Any]], cpus: int | None = None) -> list[st
             out.append(
                 f"- {r['row']}: sustained {r['x_real_time']:.2f}x real time, {r['dropped']} dropped, "
                 f"{r['estimates']} of {r['expected_estimates']} estimates"
+                + (
+                    f"; the player went on {r['flow_stalls']} time(s) after {r['flow_stall_s']:g} s "
+                    "without an estimate (a best-effort message lost)"
+                    if r.get("flow_stalls")
+                    else ""
+                )
             )
     return out
 
