@@ -15,18 +15,19 @@ Per vehicle the benchmark
   from ``os.wait4``), wall and CPU time, the estimates written and the size of the output bag on disk;
 * measures, in a child process per bag, with :mod:`tracemalloc` (which slows a run tenfold: so on two short
   bags, the first ``--trace-s`` seconds of the short bag, default 5 s, and twice that), what the run holds
-  after each stage of ``terrain-estimate`` (replay; the summary against ground truth; the writer) and the size
-  of the estimates kept in memory (every output message, deep, :func:`deep_size`); the growth between the two
-  lengths, per stage and by allocation site, names what grows;
+  after each stage of ``terrain-estimate`` (the replay, which writes each estimate as it is made; the summary
+  and closing the bag) and the size of the estimates kept in memory (deep, :func:`deep_size`: none since the
+  run writes them as they come); the growth between the two lengths, per stage and by allocation site, names
+  what grows;
 * runs ``terrain-batch`` with 1 and 2 workers over the short bags (and, with ``--batch-long``, the long ones) and
   samples every process of its tree (``VmHWM``, the kernel's peak RSS of each, read every 0.2 s) for the peak
   RSS per worker.
 
 The verdict per vehicle (:func:`verdict`): "streams" when the long bag's peak RSS exceeds the short one's by no
 more than its extra estimates held in memory (extra estimates × bytes per estimate in memory, measured on the
-short bag) plus a tolerance of :data:`TOLERANCE_FRACTION` of the short bag's peak (allocator arenas, heap
-fragmentation, the writer's chunk buffer: noise that does not scale with the bag); else it names what grows
-from the tracemalloc stages.
+short bag: about nothing, now that they are written as they come) plus a tolerance of
+:data:`TOLERANCE_FRACTION` of the short bag's peak (allocator arenas, heap fragmentation, the writer's chunk
+buffer: noise that does not scale with the bag); else it names what grows from the tracemalloc stages.
 
 Nothing asserts a figure: they depend on the machine and its load.
 """
@@ -296,12 +297,16 @@ def deep_size(obj: Any, seen: set[int] | None = None) -> int:
 
 
 def _traced(bag: str, warm: str, vehicle: str, out: str) -> dict[str, Any]:
-    """``terrain-estimate``'s stages on ``bag`` under tracemalloc, after an untimed run on ``warm``: what is held
-    after each stage, the peaks, the allocation sites."""
+    """``terrain-estimate``'s run (:func:`~terrain_estimation.tools.estimate.estimate_to_bag`, what the CLI runs)
+    on ``bag`` under tracemalloc, after an untimed run on ``warm``: what is held and the peak of each stage, the
+    allocation sites.
+
+    Stages: the replay, which writes each estimate as it is made (up to the summary's first line: the writer
+    still open); the summary and closing the bag (to the end of the run).
+    """
     import gc
     import tracemalloc
 
-    from terrain_estimation.bag import AtomicBagWriter
     from terrain_estimation.tools import estimate as est
 
     est.estimate_bag(warm, vehicle)  # untraced warm-up: imports, numba caches, first calls (the short bag)
@@ -309,35 +314,38 @@ def _traced(bag: str, warm: str, vehicle: str, out: str) -> dict[str, Any]:
     tracemalloc.start(8)
     base = tracemalloc.take_snapshot()
     base_bytes = tracemalloc.get_traced_memory()[0]
-    run = est.estimate_bag(bag, vehicle)
+    lines: list[str] = []
+    at_summary: dict[str, Any] = {}
+
+    def report(line: str) -> None:
+        if not lines:  # the replay is done, the bag not yet closed
+            gc.collect()
+            at_summary["memory"] = tracemalloc.get_traced_memory()
+            at_summary["snapshot"] = tracemalloc.take_snapshot()
+            tracemalloc.reset_peak()
+        lines.append(line)
+
+    run, written = est.estimate_to_bag(bag, vehicle, out, overwrite=True, report=report)
     gc.collect()
-    replay = tracemalloc.get_traced_memory()
-    snap_replay = tracemalloc.take_snapshot()
-    tracemalloc.reset_peak()
-    lines = list(est._summary_lines(run))  # what the CLI prints: it reads the ground truth of the whole bag
-    summary = tracemalloc.get_traced_memory()
-    snap_summary = tracemalloc.take_snapshot()
-    tracemalloc.reset_peak()
-    with AtomicBagWriter(out, overwrite=True) as writer:
-        writer.write_all(run.outputs)
-    writing = tracemalloc.get_traced_memory()
+    end = tracemalloc.get_traced_memory()
+    snap_end = tracemalloc.take_snapshot()
     tracemalloc.stop()
-    outputs_bytes = deep_size(run.outputs)
+    replay, snap_replay = at_summary["memory"], at_summary["snapshot"]
+    outputs_bytes = deep_size(run.outputs)  # the estimates the run holds: none, they were written
     truth = run.__dict__.get("_truth") or {}
     return {
-        "estimates": len(run.outputs),
+        "estimates": written,
         "truth_messages": sum(len(v) for v in truth.values()),
         "summary_lines": len(lines),
         "held_replay_mb": (replay[0] - base_bytes) / MB,
         "peak_replay_mb": (replay[1] - base_bytes) / MB,
-        "held_summary_mb": (summary[0] - base_bytes) / MB,
-        "peak_summary_mb": (summary[1] - base_bytes) / MB,
-        "peak_writing_mb": (writing[1] - base_bytes) / MB,
+        "held_end_mb": (end[0] - base_bytes) / MB,
+        "peak_closing_mb": (end[1] - base_bytes) / MB,
         "outputs_mb": outputs_bytes / MB,
         "truth_mb": deep_size(truth) / MB,
-        "bytes_per_estimate": outputs_bytes / max(len(run.outputs), 1),
+        "bytes_per_estimate": outputs_bytes / max(written, 1),
         "sites_replay": _sites(snap_replay, base),
-        "sites_summary": _sites(snap_summary, snap_replay),
+        "sites_end": _sites(snap_end, snap_replay),
     }
 
 
@@ -411,22 +419,23 @@ def verdict(
 
 def _what_grows(short: Mapping[str, Any], long: Mapping[str, Any], scale: float = 1.0) -> str:
     """What grew from the short traced bag to the long one, per stage of ``terrain-estimate``, times ``scale``
-    (the long bag's extra seconds over the traced bags' difference: a projection to the long bag). Stages: the
-    estimates held after the replay, the replay's transient peak above them, the ground truth the summary
-    reads, the writer's transient peak; then the sites holding the most more after the summary."""
+    (the long bag's extra seconds over the traced bags' difference: a projection to the long bag). Stages
+    (:func:`_traced`): what the run holds after the replay (which writes the estimates as it goes), the replay's
+    transient peak above it, what is held at the end (after the summary and closing the bag), the closing's
+    transient peak above it; then the sites holding the most more after the replay."""
 
     def grew(f: Any) -> float:
         return scale * (f(long) - f(short))
 
     parts = [
-        f"estimates held {grew(lambda t: t['held_replay_mb']):+.1f} MB",
-        f"replay peak above them {grew(lambda t: t['peak_replay_mb'] - t['held_replay_mb']):+.1f} MB",
-        f"ground truth read for the summary {grew(lambda t: t['held_summary_mb'] - t['held_replay_mb']):+.1f} MB",
-        f"writer peak {grew(lambda t: t['peak_writing_mb'] - t['held_summary_mb']):+.1f} MB",
+        f"held after the replay {grew(lambda t: t['held_replay_mb']):+.1f} MB",
+        f"replay peak above it {grew(lambda t: t['peak_replay_mb'] - t['held_replay_mb']):+.1f} MB",
+        f"held at the end {grew(lambda t: t['held_end_mb']):+.1f} MB",
+        f"closing peak {grew(lambda t: t['peak_closing_mb'] - t['held_replay_mb']):+.1f} MB",
     ]
-    sites = sorted(long.get("sites_summary", []), key=lambda kv: -kv[1])[:2]
+    sites = sorted(long.get("sites_replay", []), key=lambda kv: -kv[1])[:2]
     top = ", ".join(f"{k} {v:.1f}" for k, v in sites if v > 0.05)
-    return "projected from the traces: " + "; ".join(parts) + (f" (summary's sites, MB: {top})" if top else "")
+    return "projected from the traces: " + "; ".join(parts) + (f" (replay's sites, MB: {top})" if top else "")
 
 
 # ---------------------------------------------------------------------------
@@ -527,9 +536,9 @@ def format_memory(rows: Sequence[Mapping[str, Any]]) -> list[str]:
                 continue
             lines.append(
                 f"  {'':<12}tracemalloc {label:<5} {t['estimates']:>7d} estimates × {t['bytes_per_estimate']:.0f} B ="
-                f" {t['outputs_mb']:.1f} MB; held after replay {t['held_replay_mb']:.1f} MB (peak"
-                f" {t['peak_replay_mb']:.1f}), after summary {t['held_summary_mb']:.1f} MB (truth"
-                f" {t['truth_messages']} msgs {t['truth_mb']:.1f} MB), writing peak {t['peak_writing_mb']:.1f} MB"
+                f" {t['outputs_mb']:.1f} MB held; after the replay {t['held_replay_mb']:.1f} MB (peak"
+                f" {t['peak_replay_mb']:.1f}), at the end {t['held_end_mb']:.1f} MB (truth held"
+                f" {t['truth_messages']} msgs {t['truth_mb']:.1f} MB), closing peak {t['peak_closing_mb']:.1f} MB"
             )
     return lines
 

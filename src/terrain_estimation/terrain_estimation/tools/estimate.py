@@ -4,13 +4,16 @@ Runs the vehicle's adapter and filter over the bag's sensor topics with no
 ROS graph, in the bag's recorded order (the order a live replay publishes
 them), and writes the estimates to a new bag, atomically. The estimates are
 identical to those of the live node fed the same messages: both go through
-the same adapter (tested in ``test/test_live_offline.py``).
+the same adapter (tested in ``test/test_live_offline.py``). Each estimate is
+written as it is made (:func:`estimate_to_bag`): memory does not grow with the
+bag's length.
 
 A summary goes to stdout: messages read, rejected (by reason) and written, what
 the vehicle's adapter says about the run (its ``summary_lines()``, if it has
 one: e.g. the skid steer's wheel-speed lookup and measured rate), the last
 estimate, and, when the bag carries ``ground_truth/<topic>`` for an estimate
-topic (a simulator's bag), the error of every numeric field against it.
+topic (a simulator's bag), the error of every numeric field against it
+(:mod:`terrain_estimation.tools.estimate_truth`, read in the same pass).
 
 ``--config`` may be a file that describes another model of the vehicle in its
 ``/**`` section (``vehicle.kind`` other than the estimator's, e.g.
@@ -20,6 +23,11 @@ file to the node, the names of ``/**`` the estimator declares are taken, the
 others are left to the file's other readers, and the estimator's section
 (checked strictly) goes over them (:func:`config_values`,
 :mod:`terrain_estimation.config_sections`).
+
+A message rejected by the input checks, or whose bytes do not decode, is
+counted and the run goes on: the bag then holds every estimate made. A run
+that stops (an unreadable bag, an internal error, Ctrl-C) or estimates nothing
+leaves no output bag (the partial one is removed).
 
 Exit status (``terrain_estimation.cli``): 0 estimates written; 2 the input
 cannot be used — nothing is written: a missing or corrupt bag, a topic recorded
@@ -33,14 +41,12 @@ from __future__ import annotations
 
 import argparse
 import gc
-import math
+import os
 import sys
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from terrain_estimation.bag import AtomicBagWriter, bag_contents, msgtype_name, read_bag
 from terrain_estimation.cli import EXIT_OK, InputError, run_cli
@@ -48,7 +54,9 @@ from terrain_estimation.config_sections import describes_another_kind, node_file
 from terrain_estimation.outputs import check_output_path
 from terrain_estimation.params import ParamValue, parse_override, resolve_parameters
 from terrain_estimation.ros.validation import InputGuard
-from terrain_estimation.tools.estimate_replay import Replay, replay_bulk, replay_messages
+from terrain_estimation.tools.estimate_replay import Replay, Sink, TruthSink, replay_bulk, replay_messages
+from terrain_estimation.tools.estimate_stream import StreamedEstimates
+from terrain_estimation.tools.estimate_truth import numeric_fields, streamed_truth_errors, truth_errors
 from terrain_estimation.vehicles import VEHICLES, estimator_parameters, get_vehicle
 
 __all__ = [
@@ -56,11 +64,14 @@ __all__ = [
     "add_output_arguments",
     "config_values",
     "estimate_bag",
+    "estimate_to_bag",
     "run_adapter",
     "main",
     "numeric_fields",
     "parse_overrides",
+    "streamed_truth_errors",
     "topic_name",
+    "truth_errors",
 ]
 
 
@@ -72,30 +83,6 @@ def topic_name(namespace: str, relative: str) -> str:
     return f"{ns}/{relative}"
 
 
-def numeric_fields(msg: Any, prefix: str = "") -> dict[str, float]:
-    """Flat ``{field path: value}`` of the numeric scalar fields of a message.
-
-    Nested messages give ``outer.inner`` paths and arrays of messages
-    ``wheels[0].slip`` (the rover's ``WheelTerrainArray``); numeric arrays
-    and the header are left out.
-    """
-    out: dict[str, float] = {}
-    for name in getattr(msg, "get_fields_and_field_types", dict)().keys():
-        value = getattr(msg, name)
-        path = f"{prefix}{name}"
-        if isinstance(value, bool):
-            continue
-        if isinstance(value, (int, float)):
-            out[path] = float(value)
-        elif hasattr(value, "get_fields_and_field_types") and name != "header":
-            out.update(numeric_fields(value, f"{path}."))
-        elif isinstance(value, (list, tuple)):
-            for i, item in enumerate(value):
-                if hasattr(item, "get_fields_and_field_types"):
-                    out.update(numeric_fields(item, f"{path}[{i}]."))
-    return out
-
-
 @dataclass
 class EstimationRun:
     """What an offline run produced (messages in output order).
@@ -104,9 +91,13 @@ class EstimationRun:
     on first access, not during the run: only a summary against ground truth needs it, and decoding it
     during the replay cost as much as decoding the inputs (undecodable truth messages are counted in
     ``rejected`` when it is read).
+
+    A run with a sink (:func:`estimate_to_bag`) keeps no output: ``outputs`` stays empty and ``streamed``
+    counts the estimates handed to the sink.
     """
 
     outputs: list[tuple[str, Any, int]] = field(default_factory=list)  # (topic, msg, log time ns)
+    streamed: int = 0  # estimates handed to a sink instead of kept in ``outputs``
     inputs_read: int = 0
     truth_loader: Callable[[EstimationRun], dict[str, list[Any]]] | None = field(default=None, repr=False)
     # (estimate topic, truth message) of the bag's ground truth in recorded order, read anew at each call
@@ -148,6 +139,8 @@ def run_adapter(
     values: Mapping[str, Any] | None = None,
     previous: bool = False,
     bulk: bool = True,
+    sink: Sink | None = None,
+    truth: TruthSink | None = None,
 ) -> EstimationRun:
     """Feed ``adapter`` every input message of ``bag``, in recorded order.
 
@@ -162,6 +155,10 @@ def run_adapter(
     the clock for the future-stamp check is the bag's log time), rejections are
     counted in ``run.rejected`` and a non-finite estimate is never kept, so that
     live and offline runs agree on bad input too.
+
+    With a ``sink``, each estimate kept goes to it as it is made, not to ``run.outputs``; with ``truth``,
+    the ground-truth topics are read in the same pass and each of their decoded messages goes to it, in
+    recorded order, as ``truth(bag topic, message)`` (not with ``previous``).
 
     Raises:
         BagError: the bag is unreadable (the message says how much was read).
@@ -199,8 +196,10 @@ def run_adapter(
 
     run.truth_loader, run.truth_reader = load_truth, read_truth
     # Every topic's type is checked (``types`` holds the truth topics too) before any message is read.
-    # ``previous``: the truth decoded in the same pass, as the previous path did (benchmarks).
-    read = list(inputs) + (list(truth_topics) if previous else [])
+    # ``previous``: the truth decoded in the same pass, as the previous path did (benchmarks); ``truth``: too.
+    if previous and truth is not None:
+        raise ValueError("run_adapter: a truth sink is not taken on the previous path")
+    read = list(inputs) + (list(truth_topics) if previous or truth is not None else [])
     eager: dict[str, list[Any]] = {}
     # The cyclic garbage collector is paused for the replay (not on the previous path): the run keeps every
     # output message, and the collector's full passes traverse them again and again (a fifth of the CPU of
@@ -210,7 +209,7 @@ def run_adapter(
     if not previous:
         gc.disable()
     try:
-        replay = Replay(run, adapter, bag, read, types, undecodable, inputs, outputs, guard, progress)
+        replay = Replay(run, adapter, bag, read, types, undecodable, inputs, outputs, guard, progress, sink, truth)
         if previous or not bulk:
             replay_messages(replay, truth_topics, eager)
         else:
@@ -233,6 +232,7 @@ def estimate_bag(
     progress: bool = False,
     reference: bool = False,
     bulk: bool = True,
+    stream: StreamedEstimates | None = None,
 ) -> EstimationRun:
     """Run ``vehicle``'s estimator over ``bag`` (see :func:`run_adapter`).
 
@@ -243,6 +243,8 @@ def estimate_bag(
             (:func:`run_adapter`). The estimates agree to rounding.
         bulk: the numeric inputs decoded and checked in bulk (the default; False: one message at a time, as
             before; the same estimates, bit for bit: :func:`run_adapter`).
+        stream: each estimate goes to it as it is made, none is kept in ``run.outputs``, and the ground
+            truth is read in the same pass (:func:`estimate_to_bag`; not with ``reference``).
     """
     entry = get_vehicle(vehicle)
     ns = namespace if namespace is not None else entry.namespace
@@ -251,13 +253,100 @@ def estimate_bag(
     set_compiled = getattr(adapter, "set_compiled", None)
     if reference and callable(set_compiled):
         set_compiled(False)
-    run = run_adapter(adapter, ns, bag, progress=progress, values=values, previous=reference, bulk=bulk)
+    if stream is not None:
+        _expect_truth(stream, adapter, ns, bag)
+    run = run_adapter(
+        adapter,
+        ns,
+        bag,
+        progress=progress,
+        values=values,
+        previous=reference,
+        bulk=bulk,
+        sink=stream,
+        truth=stream.truth if stream is not None else None,
+    )
     health = getattr(getattr(adapter, "health", None), "values", {})
     run.divergences = int(health.get("divergences", 0))
     run.limit_resets = int(health.get("limit_resets", 0))
     summary = getattr(adapter, "summary_lines", None)
     run.notes = list(summary()) if callable(summary) else []
     return run
+
+
+def estimate_to_bag(
+    bag: str | Path,
+    vehicle: str,
+    output: str | Path,
+    *,
+    namespace: str | None = None,
+    config: str | Path | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    overwrite: bool = False,
+    progress: bool = False,
+    report: Callable[[str], None] | None = None,
+) -> tuple[EstimationRun, int]:
+    """:func:`estimate_bag` writing each estimate to the bag ``output`` as it is made; the run and the
+    messages written.
+
+    The bag holds what :func:`estimate_bag`'s ``run.outputs`` would, written by the same
+    :class:`~terrain_estimation.bag.AtomicBagWriter` in the same order, and memory does not grow with the
+    bag: no estimate is kept (``run.outputs`` stays empty; ``run.streamed`` counts them), the ground truth is
+    compared in the same pass with running sums (:class:`~terrain_estimation.tools.estimate_stream.StreamedEstimates`).
+    ``report`` is given the summary's lines (:func:`_summary_lines`, the same text) before the bag is closed.
+
+    ``output`` is checked as :class:`~terrain_estimation.bag.AtomicBagWriter` does (``overwrite``: a previous
+    bag may be replaced; never an input or anything else). The bag is moved into place only when the run
+    ends with estimates; otherwise the partial bag is removed, and so are the empty parent directories the
+    writer made, and ``output`` is left as it was.
+
+    Raises:
+        InputError: no estimate at all (:func:`check_usable`).
+        BagError: the bag is unreadable (found at its end: nothing is written).
+    """
+    ns = namespace if namespace is not None else get_vehicle(vehicle).namespace
+    made = _missing_parents(Path(output))
+    try:
+        with AtomicBagWriter(output, overwrite=overwrite, inputs=[bag]) as writer:
+            stream = StreamedEstimates(writer)
+            run = estimate_bag(
+                bag, vehicle, namespace=ns, config=config, overrides=overrides, progress=progress, stream=stream
+            )
+            for line in _summary_lines(run, stream):
+                if report is not None:
+                    report(line)
+            check_usable(run, bag, ns)
+        return run, writer.count
+    except BaseException:
+        for parent in made:  # deepest first; one that holds anything stays
+            try:
+                os.rmdir(parent)
+            except OSError:
+                break
+        raise
+
+
+def _missing_parents(path: Path) -> list[Path]:
+    """The parent directories of ``path`` that do not exist, deepest first."""
+    missing = []
+    parent = path.absolute().parent
+    while not parent.exists() and parent != parent.parent:
+        missing.append(parent)
+        parent = parent.parent
+    return missing
+
+
+def _expect_truth(stream: StreamedEstimates, adapter: Any, namespace: str, bag: str | Path) -> None:
+    """Tell ``stream`` the ground truth of ``adapter``'s estimates (:meth:`StreamedEstimates.expect`)."""
+    truth_topics = {
+        topic_name(namespace, "ground_truth/" + s.topic): topic_name(namespace, s.topic) for s in adapter.outputs
+    }
+    try:
+        present = {t.topic for t in bag_contents(bag).values() if t.count > 0}
+    except Exception:  # the replay's reader says what is wrong with the bag, in its own words
+        present = set()
+    fields = {topic_name(namespace, s.topic): tuple(s.truth_fields) for s in adapter.outputs}
+    stream.expect(truth_topics, fields, present)
 
 
 def config_values(
@@ -307,100 +396,6 @@ def _config_values(
     return resolve_parameters(specs, {**values, **(overrides or {})}, strict=True, source="--param")
 
 
-def _stamp(msg: Any) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-
-
-def _error_figures(
-    errors: Mapping[str, list[float]], last_ref: Mapping[str, float]
-) -> dict[str, tuple[float, float, float]]:
-    """RMS, final absolute and final relative error per field, from the errors in the estimates' order."""
-    return {
-        name: (
-            math.sqrt(float(np.mean(np.square(e)))),
-            abs(e[-1]),
-            abs(e[-1]) / abs(last_ref[name]) if last_ref[name] else math.inf,
-        )
-        for name, e in errors.items()
-        if e
-    }
-
-
-def truth_errors(
-    estimates: Sequence[Any], truths: Sequence[Any], fields: Sequence[str]
-) -> dict[str, tuple[float, float, float]]:
-    """RMS, final absolute and final relative error of ``fields`` against ground truth.
-
-    Each estimate is compared with the latest truth message stamped at or
-    before it (truth is piecewise constant between its samples).
-    """
-    if not estimates or not truths:
-        return {}
-    t_truth = np.array([_stamp(m) for m in truths])
-    truth_fields = [numeric_fields(m) for m in truths]
-    errors: dict[str, list[float]] = {}
-    last_ref: dict[str, float] = {}
-    for est in estimates:
-        i = int(np.searchsorted(t_truth, _stamp(est), side="right")) - 1
-        if i < 0:
-            continue
-        ref = truth_fields[i]
-        values = numeric_fields(est)
-        for name in fields:
-            errors.setdefault(name, []).append(values[name] - ref[name])
-        last_ref = ref
-    return _error_figures(errors, last_ref)
-
-
-def streamed_truth_errors(run: EstimationRun) -> dict[str, dict[str, tuple[float, float, float]]]:
-    """:func:`truth_errors` of every estimate topic of ``run``, reading the ground truth in one streaming pass.
-
-    The truth is never held whole (an hour of a 100 Hz truth topic is a few hundred MB of messages): each
-    estimate gets the compared fields of the latest truth message stamped at or before it while the truth
-    goes by in recorded order (stamps ascending, as :func:`truth_errors`' search assumes), and the errors
-    are then formed in the estimates' order, so the figures are :func:`truth_errors`' to the bit. A truth
-    already in memory (``run.truth`` read, or decoded during the run) is used as it is.
-    """
-    topics = sorted({t for t, _, _ in run.outputs})
-    fields = {t: tuple(run.truth_fields.get(t, ())) for t in topics}
-    stamps = {t: np.array([_stamp(m) for m in run.messages(t)]) for t in topics}
-    order = {t: np.argsort(stamps[t], kind="stable") for t in topics}
-    refs: dict[str, list[dict[str, float] | None]] = {t: [None] * len(stamps[t]) for t in topics}
-    cursor = dict.fromkeys(topics, 0)
-    current: dict[str, dict[str, float] | None] = dict.fromkeys(topics)
-    if "_truth" in run.__dict__ or run.truth_reader is None:
-        items: Iterable[tuple[str, Any]] = ((t, m) for t, ms in run.truth.items() for m in ms)
-    else:
-        items = run.truth_reader()
-    for topic, msg in items:
-        if topic not in refs:
-            continue
-        s, k, idx = _stamp(msg), cursor[topic], order[topic]
-        t_est, ref = stamps[topic], refs[topic]
-        while k < idx.size and t_est[idx[k]] < s:  # these estimates lie before this truth message
-            ref[idx[k]] = current[topic]
-            k += 1
-        cursor[topic] = k
-        values = numeric_fields(msg)
-        current[topic] = {name: values[name] for name in fields[topic]}
-    out: dict[str, dict[str, tuple[float, float, float]]] = {}
-    for topic in topics:
-        idx, ref = order[topic], refs[topic]
-        for k in range(cursor[topic], idx.size):
-            ref[idx[k]] = current[topic]
-        errors: dict[str, list[float]] = {}
-        last_ref: dict[str, float] = {}
-        for est, r in zip(run.messages(topic), ref, strict=True):
-            if r is None:
-                continue
-            values = numeric_fields(est)
-            for name in fields[topic]:
-                errors.setdefault(name, []).append(values[name] - r[name])
-            last_ref = r
-        out[topic] = _error_figures(errors, last_ref)
-    return out
-
-
 def check_usable(run: EstimationRun, bag: str | Path, namespace: str) -> None:
     """Raise :class:`~terrain_estimation.cli.InputError` when ``run`` estimated nothing, saying why.
 
@@ -409,7 +404,7 @@ def check_usable(run: EstimationRun, bag: str | Path, namespace: str) -> None:
     ``--namespace``, a bag of another vehicle or a topic missing is seen at once;
     when inputs were read but every one was rejected, the reasons come with it.
     """
-    if run.outputs:
+    if run.outputs or run.streamed:
         return
     expected = ", ".join(f"{t} ({m})" for t, m in run.expected_topics.items())
     if run.inputs_read == 0:
@@ -429,8 +424,18 @@ def check_usable(run: EstimationRun, bag: str | Path, namespace: str) -> None:
     )
 
 
-def _summary_lines(run: EstimationRun) -> Iterator[str]:
-    truth_errs = streamed_truth_errors(run)  # read now: its undecodable messages belong to the counts below
+def _summary_lines(run: EstimationRun, stream: StreamedEstimates | None = None) -> Iterator[str]:
+    """What ``terrain-estimate`` prints: counts, the adapter's notes, per estimate topic its count, its last
+    estimate and its errors against ground truth (from ``run.outputs``, or from ``stream`` for a streamed run)."""
+    if stream is None:
+        truth_errs = streamed_truth_errors(run)  # read now: its undecodable messages belong to the counts below
+        counts: dict[str, int] = {}
+        last: dict[str, Any] = {}
+        for topic, msg, _ in run.outputs:
+            counts[topic] = counts.get(topic, 0) + 1
+            last[topic] = msg
+    else:
+        truth_errs, counts, last = stream.truth_errors(), stream.counts, stream.last
     rejected = sum(run.rejected.values())
     yield f"input messages read: {run.inputs_read} ({run.accepted} accepted, {rejected} rejected)"
     for reason, count in sorted(run.rejected.items()):
@@ -446,12 +451,9 @@ def _summary_lines(run: EstimationRun) -> Iterator[str]:
     for reason, count in sorted(run.outputs_dropped.items()):
         yield f"  not written {count}: {reason}"
     yield from run.notes
-    topics = sorted({t for t, _, _ in run.outputs})
-    for topic in topics:
-        msgs = run.messages(topic)
-        yield f"{topic}: {len(msgs)} estimates"
-        last = numeric_fields(msgs[-1])
-        shown = ", ".join(f"{k}={v:.6g}" for k, v in list(last.items())[:8])
+    for topic in sorted(counts):
+        yield f"{topic}: {counts[topic]} estimates"
+        shown = ", ".join(f"{k}={v:.6g}" for k, v in list(numeric_fields(last[topic]).items())[:8])
         yield f"  last: {shown}"
         for name, (rms, final, rel) in truth_errs.get(topic, {}).items():
             # A relative error above 1000 % says the truth is near zero (a sideslip on a straight run), not more.
@@ -499,15 +501,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         check_output_path(args.output, overwrite=args.overwrite, inputs=[args.bag])
         print(f"estimating {args.bag} as {args.vehicle} ...", file=sys.stderr)
         namespace = args.namespace if args.namespace is not None else get_vehicle(args.vehicle).namespace
-        run = estimate_bag(
-            args.bag, args.vehicle, namespace=namespace, config=args.config, overrides=overrides, progress=True
+        _, written = estimate_to_bag(
+            args.bag,
+            args.vehicle,
+            args.output,
+            namespace=namespace,
+            config=args.config,
+            overrides=overrides,
+            overwrite=args.overwrite,
+            progress=True,
+            report=print,
         )
-        for line in _summary_lines(run):
-            print(line)
-        check_usable(run, args.bag, namespace)
-        with AtomicBagWriter(args.output, overwrite=args.overwrite, inputs=[args.bag]) as writer:
-            writer.write_all(run.outputs)
-        print(f"wrote {len(run.outputs)} messages to {args.output}")
+        print(f"wrote {written} messages to {args.output}")
         return EXIT_OK
 
     return run_cli("terrain-estimate", body, interrupted="interrupted; no output bag written")

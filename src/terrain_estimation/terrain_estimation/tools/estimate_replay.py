@@ -19,6 +19,10 @@ Two loops feed an adapter the input messages of a bag in recorded order, through
   ahead of the clock, a value out of bounds) and every other message go the previous path's way, one by
   one, so that a rejection names the same reason; ``test/test_replay_bulk.py`` checks that both paths
   reject the same messages and give the same estimates.
+
+Both loops keep the estimates in ``run.outputs``, or hand each to ``Replay.sink`` as it is made (a run that
+writes them as they come: :mod:`terrain_estimation.tools.estimate_stream`); with ``Replay.truth`` the
+ground-truth topics read in the same pass go to it in recorded order.
 """
 
 from __future__ import annotations
@@ -44,6 +48,10 @@ WINDOW = 1024
 _INT64_END = 2**63
 Undecodable = Callable[[str, int, BaseException], None]
 Handler = Callable[[int, Sequence[float]], list[tuple[str, Any]]]
+Sink = Callable[[str, Any, int], None]
+"""Given each estimate kept, as it is made: (absolute topic, message, log time ns)."""
+TruthSink = Callable[[str, Any], None]
+"""Given each decoded message of a ground-truth topic read in the replay's pass: (truth topic, message)."""
 
 
 class _Progress:
@@ -57,20 +65,28 @@ class _Progress:
         if self.enabled and time.monotonic() - self.last > 2.0:
             self.last = time.monotonic()
             print(
-                f"  ... {run.inputs_read} messages, {len(run.outputs)} estimates, {self.last - self.started:.0f} s",
+                f"  ... {run.inputs_read} messages, {len(run.outputs) + run.streamed} estimates,"
+                f" {self.last - self.started:.0f} s",
                 file=sys.stderr,
             )
 
 
-def _keep(run: Any, outputs: Mapping[str, str], produced: list[tuple[str, Any]], log_time_ns: int) -> None:
-    """The adapter's outputs of one message into ``run.outputs``, a non-finite one counted and dropped."""
+def _keep(
+    run: Any, outputs: Mapping[str, str], produced: list[tuple[str, Any]], log_time_ns: int, sink: Sink | None
+) -> None:
+    """The adapter's outputs of one message into ``run.outputs`` (or to ``sink``, counted in ``run.streamed``),
+    a non-finite one counted and dropped."""
     for key, out in produced:
         bad = first_nonfinite(out)
         if bad is not None:
             reason = f"{outputs[key]}: {bad[0]} not finite"
             run.outputs_dropped[reason] = run.outputs_dropped.get(reason, 0) + 1
             continue
-        run.outputs.append((outputs[key], out, log_time_ns))
+        if sink is None:
+            run.outputs.append((outputs[key], out, log_time_ns))
+        else:
+            sink(outputs[key], out, log_time_ns)
+            run.streamed += 1
 
 
 def _rejected(run: Any, adapter: Any, rejection: Any) -> None:
@@ -93,6 +109,9 @@ class Replay:
         inputs: absolute input topic -> adapter key; ``outputs``: adapter output key -> absolute topic.
         guard: the node's input checks (None: none).
         progress: a progress line on stderr every 2 s.
+        sink: given each estimate as it is made, instead of ``run.outputs`` (None: kept there).
+        truth: given the messages of the topics of ``read`` that are not inputs (ground truth), in recorded
+            order (None: the previous path's ``eager`` collects them).
     """
 
     run: Any
@@ -105,18 +124,23 @@ class Replay:
     outputs: Mapping[str, str]
     guard: InputGuard | None
     progress: bool
+    sink: Sink | None = None
+    truth: TruthSink | None = None
 
 
 def replay_messages(r: Replay, truth_topics: Mapping[str, str], eager: dict[str, list[Any]]) -> None:
     """The previous path (module docstring): every message decoded, checked and handled as an object; the
-    ground truth (``truth_topics``, when ``r.read`` has them) collected into ``eager``."""
+    ground truth (``truth_topics``, when ``r.read`` has them) collected into ``eager`` (or given to ``r.truth``)."""
     run, adapter, inputs, outputs, guard = r.run, r.adapter, r.inputs, r.outputs, r.guard
     eager_truth = len(r.read) > len(inputs)
     judged = isinstance(adapter, JudgedInputs)
     ticker = _Progress(r.progress)
     for item in read_bag(r.bag, r.read, types=r.types, on_undecodable=r.undecodable):
         if eager_truth and item.topic in truth_topics:
-            eager.setdefault(truth_topics[item.topic], []).append(item.msg)
+            if r.truth is not None:
+                r.truth(item.topic, item.msg)
+            else:
+                eager.setdefault(truth_topics[item.topic], []).append(item.msg)
             continue
         run.inputs_read += 1
         run.topics_read[item.topic] = run.topics_read.get(item.topic, 0) + 1
@@ -129,7 +153,7 @@ def replay_messages(r: Replay, truth_topics: Mapping[str, str], eager: dict[str,
             if judged:  # estimates made before the gravity check has judged every accelerometer are not converged
                 adapter.inputs_judged = guard.gravity_judged
         run.accepted += 1
-        _keep(run, outputs, adapter.handle(key_in, item.msg), item.log_time_ns)
+        _keep(run, outputs, adapter.handle(key_in, item.msg), item.log_time_ns, r.sink)
         ticker.tick(run)
 
 
@@ -167,6 +191,7 @@ def _lanes(adapter: Any, guard: InputGuard | None, topics: Mapping[str, str]) ->
 def replay_bulk(r: Replay) -> None:
     """The default path (module docstring): windows of messages, the adapter's numeric inputs in bulk."""
     run, adapter, inputs, outputs, guard, undecodable = r.run, r.adapter, r.inputs, r.outputs, r.guard, r.undecodable
+    sink, truth = r.sink, r.truth if r.truth is not None else _no_truth
     lanes = _lanes(adapter, guard, inputs)
     judged = isinstance(adapter, JudgedInputs)
     ticker = _Progress(r.progress)
@@ -185,6 +210,9 @@ def replay_bulk(r: Replay) -> None:
                     tally.undecodable(topic, exc)
                     undecodable(topic, log_time_ns, exc)
                     continue
+            if topic not in inputs:  # a ground-truth topic (read only for ``r.truth``)
+                truth(topic, msg)
+                continue
             run.inputs_read += 1
             run.topics_read[topic] = run.topics_read.get(topic, 0) + 1
             key_in = inputs[topic]
@@ -204,7 +232,7 @@ def replay_bulk(r: Replay) -> None:
             else:
                 produced = lanes[topic].handler(sample[0], sample[1])
             if produced:
-                _keep(run, outputs, produced, log_time_ns)
+                _keep(run, outputs, produced, log_time_ns, sink)
         ticker.tick(run)
         window.clear()
 
@@ -213,6 +241,10 @@ def replay_bulk(r: Replay) -> None:
         if len(window) >= WINDOW:
             flush()
     flush()
+
+
+def _no_truth(topic: str, _msg: Any) -> None:
+    raise AssertionError(f"{topic}: read by replay_bulk without a truth sink")
 
 
 def _decode_window(
