@@ -104,6 +104,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from terrain_estimation.estimators.soil_road_fit import fit_weights, slope_weights
 from terrain_estimation.filters.base import Array
 
 if TYPE_CHECKING:
@@ -185,27 +186,19 @@ def _fit_weights(pt: Array, t: float, half_w: float, degree: int) -> tuple[int, 
         ``(lo, w0, w1)``, or None when the window holds fewer than
         ``degree + 2`` samples or does not reach at least half-way to each
         of its edges (the fit would extrapolate).
+
+    Computed by the compiled :func:`~terrain_estimation.estimators.soil_road_fit.fit_weights`
+    (the normal equations of ``h ≈ Σ c_k ((t_i − t)/half_w)^k``, equal to numpy's
+    ``np.linalg.solve(VᵀV, Vᵀ)`` to rounding).
     """
-    lo = int(pt.searchsorted(t - half_w, side="left"))
-    hi = int(pt.searchsorted(t + half_w, side="right"))
-    if hi - lo < degree + 2:
-        return None
-    s = (pt[lo:hi] - t) / half_w  # in [−1, 1]: a well-conditioned Vandermonde matrix
-    if s[0] > -0.5 or s[-1] < 0.5:
-        return None
-    v = s[:, None] ** _powers(degree)
-    # Rows 0 and 1 of the pseudo-inverse (VᵀV)⁻¹Vᵀ.
-    rows = np.linalg.solve(v.T @ v, v.T)
-    return lo, rows[0], rows[1] / half_w
+    lo, w0, w1 = fit_weights(pt, t, half_w, degree)
+    return None if lo < 0 else (lo, w0, w1)
 
 
-@lru_cache(maxsize=8)
-def _powers(degree: int) -> Array:
-    """``[0, 1, …, degree]`` as floats (read-only): the exponents of a fit's Vandermonde matrix, which numpy's
-    power takes as float64 from an integer ``arange`` too (the same values)."""
-    powers = np.arange(degree + 1, dtype=float)
-    powers.setflags(write=False)
-    return powers
+def _as_array(values: list[float]) -> Array:
+    """``np.array(values)`` of a list of floats (the same float64 values; ``np.fromiter`` skips the
+    type and shape discovery, a third of the conversion of a window's few tens of samples)."""
+    return np.fromiter(values, float, len(values))
 
 
 @lru_cache(maxsize=32)
@@ -238,9 +231,14 @@ class ProfileRoad:
     _smooth_half_w: float
     _hdot_fit: bool
     _half_window_cache: tuple[float, float]
+    # _sorted_gaps: the buffer list the sorted differences are of, how many of its
+    # first stamps they cover, and the differences.
+    _gaps_of: list[float] | None = None
+    _gaps_count: int = 0
+    _gaps: list[float]
 
-    def _profile_window(self, t0: float, t1: float) -> tuple[Array, Array]:
-        """The buffered samples a reconstruction over ``[t0, t1]`` can touch, as arrays.
+    def _profile_window(self, t0: float, t1: float) -> tuple[int, Array]:
+        """The stamps of the buffered samples a reconstruction over ``[t0, t1]`` can touch, as an array.
 
         Every sample within ``[t0, t1]``, two more on each side (the
         neighbours linear interpolation brackets with, the last two samples
@@ -253,11 +251,11 @@ class ProfileRoad:
         are the buffer's ends whenever the reconstruction reaches them.
 
         Returns:
-            ``(pt, ph)``: the window's stamps and elevations.
+            ``(lo, pt)``: the buffer index of the window's first sample and the window's stamps.
         """
         lo = max(bisect.bisect_left(self._pt, t0) - 2, 0)
         hi = bisect.bisect_right(self._pt, t1, lo) + 2
-        return np.array(self._pt[lo:hi]), np.array(self._ph[lo:hi])
+        return lo, _as_array(self._pt[lo:hi])
 
     def _profile_on_grid(self, grid: Array) -> tuple[Array, float]:
         """Elevation on the sub-step grid and the largest profile gap over it."""
@@ -267,7 +265,7 @@ class ProfileRoad:
         lo = max(bisect.bisect_left(self._pt, g0 - w) - 2, 0)
         hi = bisect.bisect_right(self._pt, g1 + w, lo) + 2
         st = self._pt[lo:hi]
-        pt, ph = np.array(st), np.array(self._ph[lo:hi])
+        pt, ph = _as_array(st), _as_array(self._ph[lo:hi])
         if w > 0.0:
             hg = _local_quadratic(pt, ph, grid, w)
         else:
@@ -291,17 +289,35 @@ class ProfileRoad:
 
         The same value as ``np.median(np.diff(pt))`` (the same differences;
         for an even count the mean of the two middle ones, ``(a + b) / 2``
-        as numpy forms it), computed on the list: the buffer is short (tens
-        to a few hundred samples) and numpy's median costs ≈ 10 µs of call
-        overhead per step.
+        as numpy forms it), from the differences kept sorted as the buffer
+        changes: the buffer holds a hundred or more samples of which a step
+        adds about ten, and numpy's median cost ≈ 10 µs of call overhead per
+        step, sorting them all again ≈ 6 µs.
         """
-        pt = self._pt
-        n = len(pt) - 1
+        gaps = self._sorted_gaps()
+        n = len(gaps)
         if n < 1:
             return 0.0
-        d = sorted(map(operator.sub, pt[1:], pt))
         mid = n // 2
-        return d[mid] if n % 2 else (d[mid - 1] + d[mid]) / 2.0
+        return gaps[mid] if n % 2 else (gaps[mid - 1] + gaps[mid]) / 2.0
+
+    def _sorted_gaps(self) -> list[float]:
+        """The differences of consecutive buffered stamps, sorted, kept up to date with the buffer.
+
+        The buffer list only grows at its end (``add_profile_sample``) between
+        the calls of :meth:`_prune`, which drop a third of it every few steps
+        and have the differences sorted anew, as does a new list (``reset``).
+        """
+        pt = self._pt
+        if self._gaps_of is not pt or self._gaps_count > len(pt):
+            self._gaps_of, self._gaps_count = pt, len(pt)
+            self._gaps = sorted(map(operator.sub, pt[1:], pt))
+            return self._gaps
+        gaps = self._gaps
+        for i in range(max(self._gaps_count, 1), len(pt)):
+            bisect.insort(gaps, pt[i] - pt[i - 1])
+        self._gaps_count = len(pt)
+        return gaps
 
     def _hdot_half_window(self, t: float) -> float:
         """Half the time window (s) of the ḣ fit at ``t``; 0 without the fit.
@@ -351,55 +367,34 @@ class ProfileRoad:
             m²/s²).
         """
         half = self._hdot_half_window(t)
-        # Buffer indices below are relative to the window (lo_h, lo_d alike).
-        reach = max(self._smooth_half_w, half)
+        w = self._smooth_half_w
+        reach = max(w, half)
         var = self.config.profile_noise_std**2
         if reach == 0.0:
-            # Neither fit: h(t) is interpolated (or extrapolated) between two
-            # samples, whose weights are read off the buffer list: the same
-            # samples and float operations as on the window's arrays, without
-            # converting them (the quarter car's every step).
-            w_h = self._interpolation_weights(t)
-            var_h = var * float(w_h @ w_h)
-            return None, self._extrapolated_road_cov(var_h, u_sub.size, delta)
-        pt, ph = self._profile_window(t - reach, t + reach)
+            # Neither fit: h(t) is interpolated (or extrapolated) between two samples (the quarter car's every step).
+            w_h = self._interpolation_weights(t)[1]
+            return None, self._extrapolated_road_cov(var * float(w_h @ w_h), u_sub.size, delta)
+        # The window's stamps; sample indices below are relative to it (lo_h, lo_d alike).
+        lo, pt = self._profile_window(t - reach, t + reach)
         # Weights of the elevation at t, as _profile_on_grid reconstructs it
         # (for the variance only: the local-fit case is approximated by the
         # fit over the same window).
-        if t > pt[-1]:
-            if pt.size >= 2:
-                beta = (t - pt[-1]) / (pt[-1] - pt[-2])
-                lo_h, w_h = pt.size - 2, np.array([-beta, 1.0 + beta])
-            else:
-                lo_h, w_h = 0, np.ones(1)
-        else:
-            fit = _fit_weights(pt, t, self._smooth_half_w, 2) if self._smooth_half_w > 0.0 else None
-            if fit is not None:
-                lo_h, w_h = fit[0], fit[1]
-            else:
-                i = int(pt.searchsorted(t, side="right"))
-                if i >= pt.size or i == 0:
-                    lo_h, w_h = min(max(i - 1, 0), pt.size - 1), np.ones(1)
-                else:
-                    a = (t - pt[i - 1]) / (pt[i] - pt[i - 1])
-                    lo_h, w_h = i - 1, np.array([1.0 - a, a])
-        var_h = var * float(w_h @ w_h)
-        hdot_end: float | None = None
-        fit = None
-        if half > 0.0:
-            for degree in range(_HDOT_DEGREE, 0, -2):  # fewer samples: a lower (odd) degree
-                fit = _fit_weights(pt, t, half, degree)
-                if fit is not None:
-                    break
+        fit = _fit_weights(pt, t, w, 2) if w > 0.0 and t <= pt[-1] else None
         if fit is not None:
-            lo_d, _, w_d = fit
-            hdot_end = float(w_d @ ph[lo_d : lo_d + w_d.size])
-            var_d = var * float(w_d @ w_d)
-            a, b = max(lo_h, lo_d), min(lo_h + w_h.size, lo_d + w_d.size)
-            cov = var * float(w_h[a - lo_h : b - lo_h] @ w_d[a - lo_d : b - lo_d]) if b > a else 0.0
+            lo_h, w_h = fit[0], fit[1]
         else:
-            return None, self._extrapolated_road_cov(var_h, u_sub.size, delta)
-        return hdot_end, np.array([[var_h, cov], [cov, var_d]])
+            i_h, w_h = self._interpolation_weights(t)
+            lo_h = i_h - lo
+        var_h = var * float(w_h @ w_h)
+        if half > 0.0:
+            # The slope weights of the highest odd degree the window allows (fewer samples: lower).
+            lo_d, w_d, norm2, cross = slope_weights(pt, t, half, _HDOT_DEGREE, lo_h, w_h)
+            if lo_d >= 0:
+                i_d = lo + lo_d
+                hdot_end = float(w_d @ _as_array(self._ph[i_d : i_d + w_d.size]))
+                var_d, cov = var * norm2, var * cross
+                return hdot_end, np.array([[var_h, cov], [cov, var_d]])
+        return None, self._extrapolated_road_cov(var_h, u_sub.size, delta)
 
     @staticmethod
     def _extrapolated_road_cov(var_h: float, n_sub: int, delta: float) -> Array:
@@ -410,25 +405,26 @@ class ProfileRoad:
         cov = (1.5 if n_sub >= 2 else 1.0) * var_h / delta
         return np.array([[var_h, cov], [cov, var_d]])
 
-    def _interpolation_weights(self, t: float) -> Array:
-        """Weights of the two samples (or one) that ``_profile_on_grid`` reconstructs ``h(t)`` from, without smoothing.
+    def _interpolation_weights(self, t: float) -> tuple[int, Array]:
+        """The samples ``_profile_on_grid`` reconstructs ``h(t)`` from without smoothing: the buffer index of the
+        first and the weights of the two (or one).
 
-        Read off the buffer list; the values of the window-array form of
-        :meth:`_road_at_measurement` (the window holds every sample the
-        bisections below find, at the same positions relative to each other).
+        Read off the buffer list: the same samples and float operations as
+        on a window's arrays (the window holds every sample the bisections
+        below find, at the same positions relative to each other).
         """
         pt = self._pt
         last = pt[-1]
         if t > last:
             if len(pt) >= 2:
                 beta = (t - last) / (last - pt[-2])
-                return np.array([-beta, 1.0 + beta])
-            return np.ones(1)
+                return len(pt) - 2, np.array([-beta, 1.0 + beta])
+            return 0, np.ones(1)
         i = bisect.bisect_right(pt, t)
         if i >= len(pt) or i == 0:
-            return np.ones(1)
+            return min(max(i - 1, 0), len(pt) - 1), np.ones(1)
         a = (t - pt[i - 1]) / (pt[i] - pt[i - 1])
-        return np.array([1.0 - a, a])
+        return i - 1, np.array([1.0 - a, a])
 
     def _prune(self) -> None:
         """Drop profile samples no step needs: keep the last one at or before t_prev − w/2."""
@@ -436,6 +432,7 @@ class ProfileRoad:
             return
         keep_from = bisect.bisect_right(self._pt, self._t_prev - self._keep_s) - 1
         if keep_from > 32:
+            self._gaps_of = None  # _sorted_gaps sorts them anew (cheaper than removing a third of them)
             del self._pt[:keep_from]
             del self._ph[:keep_from]
             del self._ps[:keep_from]

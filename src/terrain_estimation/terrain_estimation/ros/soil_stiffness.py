@@ -685,8 +685,14 @@ class SoilStiffnessAdapter:
 
         The offline replay decodes the profile in bulk and hands its numbers here
         (:attr:`field_handlers`); :meth:`handle` does the same with a message's.
+
+        Most profile samples (9 in 10 at 1 kHz against a 100 Hz filter) complete no
+        step: the estimator then made no estimate (every call drains them all) and
+        its fault, which only a step changes, is the one the last call reported,
+        so there is nothing to drain or report.
         """
-        self.estimator.add_profile_sample(stamp_ns * 1e-9, values[0], values[1])
+        if self.estimator.add_profile_sample(stamp_ns * 1e-9, values[0], values[1]) is None:
+            return []
         return self._outputs()
 
     def handle_body(self, stamp_ns: int, values: Sequence[float]) -> list[tuple[str, Any]]:
