@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from terrain_analysis.sim2real.model import Candidate, Channel, FitParameter, candidates_from_catalogue
 from terrain_analysis.sim2real.skid_steer_bag import SkidSteerBagData, wheel_speeds_at
+from terrain_analysis.sim2real.skid_steer_input import smooth_wheel_speeds
 from terrain_analysis.sim2real.skid_steer_kernel import Physics, Sensing, replay_imu
 from terrain_analysis.sim2real.skid_steer_vehicle import ReplayVehicle, no_slip_motion
 
@@ -115,8 +116,12 @@ class SkidSteerReplay:
         integration_step: float = 2.0e-3,
         noise_repeats: int = 2,
         noise_seed: int = 0,
+        wheel_speed_bandwidth: float | None = None,
     ) -> None:
         self.vehicle: str = vehicle_key
+        #: Zero-phase low-pass of the wheel speeds driving the replay (Hz; None: as read), :mod:`.skid_steer_input`.
+        self.wheel_speed_bandwidth = wheel_speed_bandwidth
+        self._omega = smooth_wheel_speeds(data.t, data.omega, wheel_speed_bandwidth)
         self.replay_vehicle = vehicle
         self.data = data
         self.warmup: float = float(warmup)
@@ -252,7 +257,7 @@ class SkidSteerReplay:
         hit = self._cache.get(key)
         if hit is None:
             hit = replay_imu(
-                self.replay_vehicle, self.data.t, self.data.omega, physics, integration_step=self.integration_step
+                self.replay_vehicle, self.data.t, self._omega, physics, integration_step=self.integration_step
             )
             # Least recently used out first, within a memory budget: the fits revisit the same physics (the
             # nominal refit of each cross-fitted candidate's folds, starts, the stability refits).
@@ -305,7 +310,11 @@ class SkidSteerReplay:
             if vehicle.speed_step > 0.0:
                 noise += rng.uniform(-0.5, 0.5, shape) * vehicle.speed_step * ratio
             noisy_motor = data.motor_velocity + noise * moving
-            noisy = wheel_speeds_at(data.t, data.joint_t, noisy_motor, ratio, data.timing)
+            noisy = smooth_wheel_speeds(
+                data.t,
+                wheel_speeds_at(data.t, data.joint_t, noisy_motor, ratio, data.timing),
+                self.wheel_speed_bandwidth,
+            )
             diff = self._dynamic(Physics(), noisy) - base
             for name, col in _IMU_COLUMN.items():
                 acc[name] += float(np.mean(diff[use, col] ** 2)) / repeats
