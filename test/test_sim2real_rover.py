@@ -1,9 +1,10 @@
 """Rover replay model of the sim-to-real attribution (issue 6): physics against the plant, errors, speed.
 
 Short simulator runs (:func:`vehicle_sim.plants.rover.simulate_rover`, Table IV
-noise) with one catalogue effect on: the nominal replay must leave the
-residuals at the noise budget on a nominal run, show a gap with the effect
-on, and close it again when the replay has the same effect at the same value.
+noise, the plant's default wheel sinkage on) with one catalogue effect on: the
+nominal replay must leave the residuals at the noise budget on a nominal run,
+show a gap with the effect on, and close it again when the replay has the same
+effect at the same value.
 """
 
 from __future__ import annotations
@@ -31,22 +32,22 @@ REPO = Path(__file__).resolve().parents[1]
 DURATION = 10.0
 
 
-def _run(effects: dict[str, dict[str, float]], terrain: str = "rolling", seed: int = 5) -> Any:
-    # The replay's wheel centres ride on the path: the plant's sinkage transient (wheel_sinkage, on by
-    # default since issue 22) is outside it (it leaves ≈ 2 σ in the vz_* channels of a nominal run).
+def _run(effects: dict[str, dict[str, float]], terrain: str = "rolling", seed: int = 5, **options: Any) -> Any:
+    # The plant sinks each wheel by its Wong-Reece sinkage (wheel_sinkage, on by default since issue 21); the
+    # replay models that sinkage with its own soil (rover_sinkage).
     scenario = RoverScenario(
-        terrain=terrain, duration=DURATION, seed=seed, effects=effects_for("rover", effects), wheel_sinkage=False
+        terrain=terrain, duration=DURATION, seed=seed, effects=effects_for("rover", effects), **options
     )
     return simulate_rover(scenario)
 
 
-def _rms(model: RoverReplay, effects: dict[str, dict[str, float]]) -> dict[str, float]:
-    """RMS of the normalised residual per channel after the warm-up."""
+def _rms(model: RoverReplay, effects: dict[str, dict[str, float]], start: float = 0.0) -> dict[str, float]:
+    """RMS of the normalised residual per channel after the warm-up (and after ``start`` s)."""
     pred = model.predict(effects, {})
     out = {}
     for ch in model.channels:
         t = model.times[ch.name]
-        use = t >= t[0] + model.warmup
+        use = t >= t[0] + max(model.warmup, start)
         r = (model.measured[ch.name] - pred[ch.name])[use] / ch.noise_std
         out[ch.name] = float(np.sqrt(np.mean(r**2)))
     return out
@@ -109,12 +110,20 @@ CASES = {
 }
 
 
+#: s, the plant's sinkage start-up: it starts each wheel at z* of its start solve (common steady slip), not of the
+#: wheel's own first samples; with slip-sinkage c = 1.5 the front wheel sinks 0.35 mm further over 3 s (a lag from
+#: a rate at the start) and comes back at the slow unloading rate by ≈ 6 s, which no replay of the bag can know
+#: (measured against the plant's truth: the replay's z* of the true loads and slips repeats the plant's sinkage to
+#: 0.01 mm from 6 s on). The effect cases are scored after it.
+SINKAGE_START_UP = 6.0
+
+
 @pytest.mark.parametrize("effect", sorted(CASES))
 def test_replay_with_the_effect_closes_the_gap(effect: str) -> None:
     run = _run({effect: CASES[effect]})
     model = build_model_from_series(series_from_run(run))
-    gap = _rms(model, {})
-    closed = _rms(model, {effect: CASES[effect]})
+    gap = _rms(model, {}, SINKAGE_START_UP)
+    closed = _rms(model, {effect: CASES[effect]}, SINKAGE_START_UP)
     assert max(gap.values()) > 2.0, gap
     for name, value in closed.items():
         assert value < 1.3, (effect, name, value, gap[name])
@@ -130,10 +139,47 @@ SOIL_CHANGE = {
 
 
 @pytest.fixture(scope="module")
-def soil_change_run() -> tuple[Any, RoverReplay]:
-    """A run with the soil changing at 0.42 m and its replay model (simulated once for the tests below)."""
-    run = _run({"soil_change": SOIL_CHANGE})
-    return run, build_model_from_series(series_from_run(run))
+def rigid_config(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """config/rover.yaml with the wheels riding on the surface (plant.wheel_sinkage false): replay without sinkage."""
+    text = (REPO / "config" / "rover.yaml").read_text()
+    assert text.count("wheel_sinkage: true") == 1
+    config = tmp_path_factory.mktemp("rigid") / "rover.yaml"
+    config.write_text(text.replace("wheel_sinkage: true", "wheel_sinkage: false"))
+    return config
+
+
+@pytest.fixture(scope="module")
+def soil_change_run(rigid_config: Path) -> tuple[Any, RoverReplay]:
+    """A run with the soil changing at 0.42 m and its replay model (simulated once for the tests below).
+
+    Plant and replay without the wheel sinkage: where a wheel enters the softer soil the plant sinks it 2–4 mm
+    deeper within ≈ 0.3 s (a vertical transient of the body that the replay's 3 s pitch smoothing spreads over
+    ±1.5 s, and inertial moments its quasi-static balance leaves out); these tests hold the soil change's own
+    machinery (forces, location, inversion) to the plant without it (:func:`test_soil_change_with_sinkage`).
+    """
+    run = _run({"soil_change": SOIL_CHANGE}, wheel_sinkage=False)
+    return run, build_model_from_series(series_from_run(run), config=rigid_config)
+
+
+def test_sinkage_scale_is_a_nuisance_of_the_replay(nominal: tuple[Any, RoverReplay]) -> None:
+    """The factor on the nominal soil's sinkage (uncertain soil moduli): 1 is the nominal replay; 0 (wheels on the
+    surface, the replay before issue 21's plant) leaves the sinking rates in the ż0^R differences."""
+    from terrain_analysis.sim2real.rover import NUISANCE
+
+    run, model = nominal
+    assert model.nuisance == []  # not fitted unless asked for (a nominal tolerance)
+    nominal_rms = _rms(model, {})
+    pred = model.predict({}, {"sinkage_scale": 1.0})
+    for ch in model.channels:
+        assert np.array_equal(pred[ch.name], model.predict({}, {})[ch.name])
+    rigid = model.predict({}, {"sinkage_scale": 0.0})
+    sigma = {c.name: c.noise_std for c in model.channels}
+    use = model.times["vz_middle_rear"] >= model.warmup
+    r = (model.measured["vz_middle_rear"] - rigid["vz_middle_rear"])[use] / sigma["vz_middle_rear"]
+    assert float(np.sqrt(np.mean(r**2))) > 2.0 * nominal_rms["vz_middle_rear"]
+    assert NUISANCE["sinkage_scale"].off == 1.0
+    with pytest.raises(ValueError, match="sinkage_scal"):
+        RoverReplay(model.series, model.params, model.soil, nuisance=("sinkage_scal",))
 
 
 def test_soil_change_replay_closes_the_gap_except_at_the_change(soil_change_run: tuple[Any, RoverReplay]) -> None:
@@ -157,6 +203,27 @@ def test_soil_change_replay_closes_the_gap_except_at_the_change(soil_change_run:
         with_effect = np.mean(((model.measured[name] - pred[name])[near] / sigma) ** 2)
         without = np.mean(((model.measured[name] - pred0[name])[near] / sigma) ** 2)
         assert with_effect < without, name
+
+
+def test_soil_change_with_sinkage() -> None:
+    """With the plant's sinkage the replay with the true soil change closes the gap from 2 s after the crossing.
+
+    The crossing's sinkage transient (module docstring of the fixture above) leaves a few σ in the ż0^R
+    differences for ≈ 2 s after the front wheel enters the changed soil; the replay's sinkage follows the plant's
+    there (its depth within 0.2 mm of the truth after the crossing: the changed soil's depth is the nominal one
+    times a 30 × 30 fit of their ratio; measured 0.16 mm).
+    """
+    run = _run({"soil_change": SOIL_CHANGE})
+    model = build_model_from_series(series_from_run(run))
+    changed = run.time[np.argmax(run.truth.soil_index[:, 2] > 0)]
+    gap = _rms(model, {})
+    assert max(gap.values()) > 3.0, gap
+    closed = _rms(model, {"soil_change": SOIL_CHANGE}, float(changed) + 2.0)
+    for name, value in closed.items():
+        assert value < 1.3, (name, value, gap[name])
+    after = model.times["velocimeter"] >= changed + 0.5
+    depth = model._last_state["sinkage"][after]
+    assert np.max(np.abs(depth - run.truth.sinkage[after])) < 2e-4
 
 
 def test_soil_change_replay_is_right_at_the_crossing(soil_change_run: tuple[Any, RoverReplay]) -> None:
@@ -243,23 +310,22 @@ def test_wheel_inversion_on_a_flat_torque_curve(nominal: tuple[Any, RoverReplay]
 
 def test_sensor_delay_is_below_the_noise_tests_at_2_cm_s() -> None:
     """Only the effort is undelayed and it changes slowly at 2 cm/s: a 60 ms delay changes the mean r² of
-    every channel by less than 0.05, far below what the noise tests flag; only a likelihood ratio over
-    the fitted delay finds it (next tests)."""
+    every channel by less than 0.1 (0.06 in vz_front_middle with the plant's sinkage, < 0.05 without), far
+    below what the noise tests flag; only a likelihood ratio over the fitted delay finds it (next tests)."""
     run = _run({"sensor_delay": {"sensor_delay": 0.06}})
     model = build_model_from_series(series_from_run(run))
     gap = _rms(model, {})
     closed = _rms(model, {"sensor_delay": {"sensor_delay": 0.06}})
     assert max(gap.values()) < 1.3, gap
     for name in gap:
-        assert abs(gap[name] ** 2 - closed[name] ** 2) < 0.05, (name, gap[name], closed[name])
+        assert abs(gap[name] ** 2 - closed[name] ** 2) < 0.1, (name, gap[name], closed[name])
 
 
 def _delay_report(delay: float, duration: float, seed: int, only: tuple[str, ...] | None = None) -> Any:
     from terrain_analysis.sim2real.attribution import attribute
 
     effects = effects_for("rover", {"sensor_delay": {"sensor_delay": delay}} if delay > 0 else {})
-    # The replay's wheel centres ride on the path (no sinkage transient): the plant's option for it.
-    scenario = RoverScenario(terrain="rolling", duration=duration, seed=seed, effects=effects, wheel_sinkage=False)
+    scenario = RoverScenario(terrain="rolling", duration=duration, seed=seed, effects=effects)
     model = build_model_from_series(series_from_run(simulate_rover(scenario)))
     if only is not None:
         model.candidates = {k: v for k, v in model.candidates.items() if k in only}
@@ -330,12 +396,12 @@ def test_candidates_are_the_catalogue_without_the_path_undulation(nominal: tuple
     assert 0.0 < distance.off < 1.0  # starts among the wheels' positions of the run
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the rover replay has no wheel sinkage; the shipped bag's plant sinks each wheel by its Wong-Reece "
-    "sinkage since issue 21 (vz_front_middle 1.65 sigma): the replay needs the plant's nominal sinkage",
-)
 def test_bag_without_ground_truth_use(tmp_path: Path) -> None:
+    """The shipped bag (its plant sinks each wheel, issue 21): every channel of the nominal replay at the noise.
+
+    Without the sinkage in the replay vz_front_middle read 1.65 σ here (the sinking rates of wheels whose
+    loads change); with it every channel is below 1.3 σ.
+    """
     model = build_model(REPO / "bags" / "rover_terrain_1")
     rms = _rms(model, {})
     for name, value in rms.items():

@@ -20,6 +20,13 @@ What the replay assumes
       config (``vehicle.*``) and the config's soil (``soil.*`` of the
       simulator section, [RB] Table II by default) with the plant's
       4th-order Wong–Reece surrogate (:mod:`vehicle_sim.terrain.terramechanics_surrogate`).
+    * Wheels that sink into that soil (``plant.wheel_sinkage`` of the
+      simulator section, on by default; issue 21): each centre rides at the
+      same soil's steady sinkage z*(W, i) = r_w (1 − cos θ0(W, i)) followed by
+      a plastic lag (loading within ``plant.sinkage_loading_time``, unloading
+      over a contact length of travel; :mod:`~terrain_analysis.sim2real.rover_sinkage`).
+      Its factor on z* is a nuisance parameter the diagnosis can fit
+      (:data:`NUISANCE` ``sinkage_scale``), off by default.
     * Two-axis load cells (``estimator.load_cell_axes: 2``): F_L and F_⊥ per
       wheel (single-axis cells leave W, DP and γ underdetermined per wheel;
       a :class:`~terrain_analysis.sim2real.where.Sim2RealError` says so).
@@ -56,11 +63,17 @@ Relations used (one set per sample; symbols as MODELS.md C.3–C.6)
        below the body x axis, with ω_j the absolute spin θ̇ (+ q̇1) + q̇_j.
        Rigid-body kinematics give each wheel's estimate of the body velocity
        at O: ẋ0^R = v_j cos(γ_j − θ) − θ̇ P_j,z − q̇1 B_j,z and
-       ż0^R = −v_j sin(γ_j − θ) + θ̇ P_j,x + q̇1 B_j,x. The channel
-       ``velocimeter`` is the mean of the three ẋ0^R; ``vz_front_middle``
+       ż0^R = −v_j sin(γ_j − θ) + θ̇ P_j,x + q̇1 B_j,x. A sinking wheel
+       (sinkage s_j, vertical) also moves at −ṡ_j cos γ_j along the terrain
+       normal, (sin(γ_j − θ), cos(γ_j − θ)) in the body frame, which both
+       estimates add (v_j, from the slip, is the speed along the tangent). The
+       channel ``velocimeter`` is the mean of the three ẋ0^R; ``vz_front_middle``
        and ``vz_middle_rear`` are the differences of the wheels' ż0^R (0 for
        a rigid rover whose soil model is right: a wrong DP of ΔDP tilts a
-       wheel's inferred velocity by ΔDP/W). These carry the soil effects.
+       wheel's inferred velocity by ΔDP/W; a wheel whose load changes by 1 N/s
+       sinks at ≈ 2e-4 m/s, ≈ 7 σ). These carry the soil effects and the
+       sinkage (before the replay modelled it, issue 21's plant read "structure
+       differs" on every control bag, gaps 0.4–15 in these two channels).
     4. Pitch and gyro: the pitch is gravity's direction in the body frame,
        θ = atan2(−(f_x − a_x), f_z − a_z), where the body acceleration
        (a_x, a_z) is the derivative (0.1 s Savitzky–Golay) of the wheels'
@@ -86,12 +99,14 @@ Effects (:data:`vehicle_sim.effects.CATALOGUE` ``["rover"]``), as the plant impl
       shifts the effort by d (linear interpolation) so that it meets the
       delayed state.
     * ``slip_sinkage``: the surrogate at W (1 + c|i|), forces divided by 1 + c|i|
-      (the plant's force-level form, exact).
+      (the plant's force-level form, exact); the steady sinkage at W (1 + c|i|).
     * ``grousers``: the plant evaluates a surrogate fitted for radius r_w + h_g
       at the tip slip 1 − (1 − i) r_w/(r_w + h_g); the replay uses the nominal
       surrogate at the tip slip plus the Wong–Reece difference
       WR(r_w + h_g) − WR(r_w) fitted as the plant fits its surrogate, on a
-      30 × 30 instead of a 100 × 100 grid (the approximation).
+      30 × 30 instead of a 100 × 100 grid (the approximation); the sinkage of
+      the cylinder r_w + h_g at the tip slip, h_g less (the nominal table times
+      a 30 × 30 fit of the depth ratio).
     * ``soil_change``: the same difference for the changed soil, blended in
       over 2 mm of wheel-centre travel beyond ``soil_change_distance``
       (the plant switches at x_j ≥ d; the blend keeps the fit of d smooth). Wheel-centre x is O's x, integrated from
@@ -103,7 +118,13 @@ Effects (:data:`vehicle_sim.effects.CATALOGUE` ``["rover"]``), as the plant impl
       soil scales are 1). With the 30 × 30 difference replaced by the plant's
       own 100 × 100 surrogate of the changed soil, the held-out residual of
       the withheld-effect suite's soil-change bags with their true parameters
-      is the same within 1.5 %: the grid is not what limits this effect.
+      is the same within 1.5 %: the grid is not what limits this effect. The
+      changed soil's sinkage is the nominal one times the 30 × 30 fit of their
+      ratio (0.16 mm off the plant's in the test's run). Where a wheel enters a
+      softer soil the plant sinks it 2–4 mm within ≈ 0.3 s: a vertical transient
+      of the body that the 3 s pitch smoothing spreads over ±1.5 s, with inertial
+      moments the quasi-static balance leaves out; the replay with the true
+      change closes the gap from ≈ 2 s after the crossing.
     * ``vertical_velocity`` (path undulation): **not a candidate.** The replay
       takes the configuration from the sensors and infers the contact angles,
       so the terrain's shape, undulation included, is part of its input: an
@@ -164,9 +185,9 @@ What the bag shows only to a likelihood ratio, and what it cannot show
       χ² over all samples falls by ≈ 40 (noise-budget units) from 0 to the
       best delay. The engine's cross-fitted held-out likelihood-ratio test
       (:func:`terrain_analysis.sim2real.attribution._cross_fitted`, issue 22
-      item 4) finds it. Measured on 30 s rolling-terrain bags (plant without
-      the sinkage transient, ``wheel_sinkage=False``): 60 ms fitted as 39,
-      44 and 62 ms (the χ² minimum over all samples of the first is at
+      item 4) finds it. Measured on 30 s rolling-terrain bags (before the
+      replay modelled the sinkage, plant with ``wheel_sinkage=False``): 60 ms
+      fitted as 39, 44 and 62 ms (the χ² minimum over all samples of the first is at
       ≈ 40 ms: the moment channels favour it, ``vz_front_middle`` no delay —
       not understood), 100 ms as 99 ms.
     * ``vertical_velocity``: see above (not a candidate). Listed as "not
@@ -180,7 +201,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -189,14 +210,17 @@ from numpy.typing import NDArray
 
 from terrain_analysis.sim2real.model import Channel, FitParameter, candidates_from_catalogue
 from terrain_analysis.sim2real.rover_bag import WHEELS, RoverSeries, read_rover_bag, series_from_run
+from terrain_analysis.sim2real.rover_kinematics import RoverKinematics
 from terrain_analysis.sim2real.rover_location import ChangeLocation
-from terrain_analysis.sim2real.rover_signal import _rotate, _savgol, _white_bound
+from terrain_analysis.sim2real.rover_signal import _savgol, _white_bound
+from terrain_analysis.sim2real.rover_sinkage import sinkage_motion
 from terrain_analysis.sim2real.rover_soil import _SoilModel, _SoilVariant, _solve_wheels
 from terrain_analysis.sim2real.where import Sim2RealError
 from terrain_estimation.models.rover import RoverParams
 
 __all__ = [
     "MODEL_FLOORS",
+    "NUISANCE",
     "RoverReplay",
     "RoverSeries",
     "build_model",
@@ -216,6 +240,8 @@ _SOIL_INPUT_EFFECTS = frozenset(
 _SMOOTH_WINDOW = 3.0  # s, Savitzky-Golay window of the accelerometer pitch
 _BOGIE_WINDOW = 1.0  # s, Savitzky-Golay window of the bogie rate
 _ACCEL_WINDOW = 0.1  # s, Savitzky-Golay window of the body acceleration from the wheels' velocities
+#: s, quadratic Savitzky–Golay window of the steady sinkage z* before the sinkage lag (:meth:`RoverReplay._sinkage`).
+_SINKAGE_WINDOW = 0.4
 
 #: Model-error floors σ_model per channel (added in quadrature to the propagated noise): the nominal replay's
 #: largest residual RMS on noiseless 15 s simulator runs (terrains rolling and step_sharp), rounded up.
@@ -231,7 +257,16 @@ MODEL_FLOORS: Mapping[str, float] = {
 }
 
 
-class RoverReplay(ChangeLocation):
+#: Nuisance parameters the replay can fit in every model (``nuisance=`` of :class:`RoverReplay`), none by default:
+#: ``sinkage_scale``, the factor on the nominal soil's steady sinkage z* (relation 3; a soil's k_c, k_φ and n are
+#: uncertain by tens of per cent, and z* goes as (k_c/b + k_φ)^(−2/(2n+1))). Its prior, if any, is the nominal
+#: tolerance's (:mod:`terrain_analysis.sim2real.tolerance`).
+NUISANCE: Mapping[str, FitParameter] = {
+    "sinkage_scale": FitParameter("sinkage_scale", "–", 1.0, (0.0, 3.0), 0.1),
+}
+
+
+class RoverReplay(ChangeLocation, RoverKinematics):
     """:class:`~terrain_analysis.sim2real.model.ReplayModel` of one rover bag (module docstring)."""
 
     vehicle = "rover"
@@ -247,8 +282,14 @@ class RoverReplay(ChangeLocation):
         source: str = "",
         monte_carlo: int = 4,
         seed: int = 0,
+        sinkage: bool = True,
+        sinkage_loading_time: float = 0.1,
+        nuisance: Sequence[str] = (),
     ) -> None:
         n = series.t.size
+        unknown = [name for name in nuisance if name not in NUISANCE]
+        if unknown:
+            raise ValueError(f"RoverReplay: unknown nuisance parameter(s) {unknown}; known: {sorted(NUISANCE)}")
         if n < 50:
             raise Sim2RealError(f"{source or 'bag'}: {n} samples; the rover replay needs at least 50 (1 s at 50 Hz)")
         self.series = series
@@ -260,19 +301,23 @@ class RoverReplay(ChangeLocation):
             raise Sim2RealError(f"{source or 'bag'}: joint_states stamps do not increase (median step {dt} s)")
         self.dt = dt
         self.noise = dict(noise or {})
+        #: Model the wheels' sinkage (module docstring, relation 3) and its loading time constant (s).
+        self.sinkage = bool(sinkage)
+        self.sinkage_loading_time = float(sinkage_loading_time)
+        self._sinkage_scale = 1.0
         self._t = series.t
         self._prepare()
         self._inside = self._inside_domain(self.noise.get("forward_speed", 0.0), source)
         self._warm_series: RoverSeries | None = None
         self._warm_start: tuple[FloatArray, FloatArray] | None = None
-        self._nominal_state: tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None = None
+        self._nominal_state: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray] | None = None
         self.soil_model = _SoilModel(soil, params)
         self.soil = soil
         self._soil_weights: FloatArray | None = None
         self._build_channels(monte_carlo, seed)
         catalogue = candidates_from_catalogue("rover", exclude=("vertical_velocity",))
         self.candidates = self._adapt_candidates(catalogue)
-        self.nuisance: list[FitParameter] = []
+        self.nuisance: list[FitParameter] = [NUISANCE[name] for name in nuisance]
         #: Effects this replay cannot identify from any bag, with the measurement that would (issue 22, item 4).
         self.unidentifiable: dict[str, str] = {
             "vertical_velocity": "a measurement of the terrain under the wheels (a surveyed or lidar profile of the "
@@ -300,6 +345,7 @@ class RoverReplay(ChangeLocation):
         window = int(round(_SMOOTH_WINDOW / dt))
         self._window = window
         self._accel_window = int(round(_ACCEL_WINDOW / dt))
+        self._sinkage_window = int(round(_SINKAGE_WINDOW / dt))
         self._accel_smooth = _savgol(s.accel, window, 0, dt)
         self._bogie_rate = _savgol(s.bogie, int(round(_BOGIE_WINDOW / dt)), 1, dt)
         self._speed_smooth = _savgol(s.speed, window, 0, dt)
@@ -369,65 +415,11 @@ class RoverReplay(ChangeLocation):
             effort = np.column_stack([np.interp(t - delay, t, effort[:, j]) for j in range(3)])
         return {"axial": axial, "perp": perp, "pitch": pitch, "effort": effort, "accel_bias": accel_bias}
 
-    def _geometry(self, q1: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Body-frame O → wheel centre P (N, 3, 2) and bogie-joint → wheel centre B (N, 3, 2; zero for the front)."""
-        cached = getattr(self, "_geometry_cache", None)
-        if cached is not None and cached[0] is q1:
-            return cached[1], cached[2]
-        P, B = self._geometry_of(q1)
-        self._geometry_cache = (q1, P, B)
-        return P, B
-
-    def _geometry_of(self, q1: FloatArray) -> tuple[FloatArray, FloatArray]:
-        n = q1.size
-        P = np.zeros((n, 3, 2))
-        B = np.zeros((n, 3, 2))
-        for j in range(2):
-            bx, bz = _rotate(q1, np.full(n, self._bogie_wheels[j, 0]), np.full(n, self._bogie_wheels[j, 1]))
-            B[:, j, 0], B[:, j, 1] = bx, bz
-            P[:, j, 0], P[:, j, 1] = self._joint[0] + bx, self._joint[1] + bz
-        P[:, 2, 0], P[:, 2, 1] = self._front[0], self._front[1]
-        return P, B
-
-    def _body_forces(self, axial: FloatArray, perp: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Body-frame (F_x, F_z) on each wheel from its cell: R(ε − θ)(F_⊥, F_L), (N, 3) each."""
-        q1 = self.series.bogie
-        fx = np.empty_like(axial)
-        fz = np.empty_like(axial)
-        for j in range(3):
-            angle = q1 if j < 2 else 0.0
-            fx[:, j], fz[:, j] = _rotate(angle, perp[:, j], axial[:, j])
-        return fx, fz
-
-    def _resistive_torque(self, effort: FloatArray) -> FloatArray:
-        p = self.params
-        return effort - p.wheel_damping * self._wheel_rate - p.wheel_gear_inertia * self._wheel_accel
-
-    def _gravity_moments(self, pitch: FloatArray, P: FloatArray, B: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """∂V/∂θ and ∂V/∂q1 (N·m) of the bogie CM and the wheels (O is the body CM)."""
-        p = self.params
-        g = p.gravity
-        q1 = self.series.bogie
-        n = q1.size
-        cx, cz = _rotate(q1, np.full(n, p.bogie_cm_offset[0]), np.full(n, p.bogie_cm_offset[1]))
-        # World x of body-frame vector (bx, bz) at pitch θ: bx cos θ + bz sin θ; ∂V/∂φ = −g Σ m x_world.
-        cos, sin = np.cos(pitch), np.sin(pitch)
-
-        def world_x(bx: FloatArray, bz: FloatArray) -> FloatArray:
-            return bx * cos + bz * sin
-
-        m_b, m_w = p.bogie_mass, p.wheel_mass
-        d_theta = -g * (
-            m_b * world_x(self._joint[0] + cx, self._joint[1] + cz)
-            + m_w * sum(world_x(P[:, j, 0], P[:, j, 1]) for j in range(3))
-        )
-        d_bogie = -g * (m_b * world_x(cx, cz) + m_w * sum(world_x(B[:, j, 0], B[:, j, 1]) for j in range(2)))
-        return d_theta, d_bogie
-
     def _wheel_state(
         self, base: Mapping[str, Any], effects: Mapping[str, Mapping[str, float]]
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """Per wheel (N, 3): W, i, DP, δ = γ − ε from (F_L, F_⊥, τ_R) and the soil model (module docstring, 3).
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Per wheel (N, 3): W, i, DP, δ = γ − ε from (F_L, F_⊥, τ_R) and the soil model (module docstring, 3),
+        and the steady sinkage z*(W, i) of the same soil (zero without :attr:`sinkage`).
 
         Newton on i for τ_R(W, i) = τ_R,measured, alternating with W = √(F_L² + F_⊥² − DP²);
         started from the nominal solution of the same data (cached).
@@ -443,6 +435,7 @@ class RoverReplay(ChangeLocation):
         sinkage = float(effects.get("slip_sinkage", {}).get("slip_sinkage_coefficient", 0.0))
         grouser = float(effects.get("grousers", {}).get("grouser_height", 0.0))
         variants = self._variants(effects, grouser)
+        all_variants = variants
         warm = self._warm_start if self._warm_series is self.series else None
         rows: NDArray[np.intp] | None = None
         if cached is not None and set(soil_inputs) == {"soil_change"} and len(variants) == 2:
@@ -472,7 +465,17 @@ class RoverReplay(ChangeLocation):
         if warm is None and not effects and self._warm_series is None:
             self._warm_series, self._warm_start = self.series, (slip.copy(), load.copy())
         delta = np.arctan2(perp.ravel(), axial.ravel()) - np.arctan2(dp, load)
-        state = (load.reshape(shape), slip.reshape(shape), dp.reshape(shape), delta.reshape(shape))
+        if self.sinkage:
+            depth = self.soil_model.depth(load, slip, sinkage=sinkage, grouser_height=grouser, variants=all_variants)
+        else:
+            depth = np.zeros_like(load)
+        state = (
+            load.reshape(shape),
+            slip.reshape(shape),
+            dp.reshape(shape),
+            delta.reshape(shape),
+            depth.reshape(shape),
+        )
         if not soil_inputs and self._warm_series is self.series:
             self._nominal_state = state
         return state
@@ -525,22 +528,33 @@ class RoverReplay(ChangeLocation):
                 self.series, self._t = saved
                 self._prepare()
 
-    def _body_velocity(
-        self, slip: FloatArray, delta: FloatArray, pitch_rate: FloatArray, P: FloatArray, B: FloatArray
-    ) -> tuple[FloatArray, FloatArray]:
-        """Each wheel's estimate of the body-frame velocity of O, (ẋ0^R, ż0^R), (N, 3) each (module docstring, 3)."""
-        s = self.series
-        spin = self._wheel_rate + pitch_rate[:, None]
-        spin[:, :2] += self._bogie_rate[:, None]
-        rim = self.params.wheel_radius * spin
-        centre = np.where(slip >= 0.0, rim * (1.0 - slip), rim / (1.0 + np.minimum(slip, 0.0) + 1e-12))
-        phi = delta.copy()
-        phi[:, :2] += s.bogie[:, None]
-        vx = centre * np.cos(phi) - pitch_rate[:, None] * P[:, :, 1]
-        vz = -centre * np.sin(phi) + pitch_rate[:, None] * P[:, :, 0]
-        vx[:, :2] -= self._bogie_rate[:, None] * B[:, :2, 1]
-        vz[:, :2] += self._bogie_rate[:, None] * B[:, :2, 0]
-        return vx, vz
+    def _sinkage(
+        self,
+        depth: FloatArray,
+        slip: FloatArray,
+        pitch_rate: FloatArray,
+        effects: Mapping[str, Mapping[str, float]],
+    ) -> tuple[FloatArray, FloatArray | None]:
+        """(s, ṡ) of each wheel (N, 3) following its steady depth (:mod:`~terrain_analysis.sim2real.rover_sinkage`);
+        ṡ is None without :attr:`sinkage`.
+
+        z* is smoothed first (quadratic, :data:`_SINKAGE_WINDOW`): it follows the inferred W and i, whose
+        per-sample noise the lag rectifies (a rising z* is followed within 0.1 s, a falling one over a contact
+        length), which biased ṡ by up to 9e-6 m/s over 5 s (0.3 σ of the ż0^R channels) on a step_sharp control
+        bag against its plant's truth; smoothed over 0.4 s, 1.7e-6 m/s. z* itself changes over the wheels'
+        travel across the terrain (≥ 1 s at 2 cm/s).
+        """
+        if not self.sinkage:
+            return np.zeros_like(depth), None
+        grouser = float(effects.get("grousers", {}).get("grouser_height", 0.0))
+        return sinkage_motion(
+            self._t,
+            _savgol(depth, self._sinkage_window, 0, self.dt) * self._sinkage_scale,
+            self._centre_speed(slip, pitch_rate),
+            loading_time=self.sinkage_loading_time,
+            radius=self.params.wheel_radius,
+            grouser_height=grouser,
+        )
 
     def _compute(
         self, effects: Mapping[str, Mapping[str, float]]
@@ -559,18 +573,19 @@ class RoverReplay(ChangeLocation):
         meas["accel_x"], meas["accel_z"] = s.accel[:, 0], s.accel[:, 1]
         pred["accel_x"] = fx.sum(axis=1) / m + bias[0]
         pred["accel_z"] = fz.sum(axis=1) / m + bias[1]
-        # Soil: per-wheel slip and contact angle (independent of the pitch rate).
-        load, slip, dp, delta = self._wheel_state(base, effects)
+        # Soil: per-wheel slip and contact angle (independent of the pitch rate), and the steady sinkage.
+        load, slip, dp, delta, depth = self._wheel_state(base, effects)
         # Pitch from gravity: the accelerometer minus the body acceleration, which the wheels' velocities give
         # (a first pass with the quasi-static pitch; the dynamic part reaches 1e-2 m/s² at a soil change).
         pitch_rate = _savgol(np.unwrap(pitch), self._window, 1, self.dt)
-        vx, vz = self._body_velocity(slip, delta, pitch_rate, P, B)
+        sinkage, sink = self._sinkage(depth, slip, pitch_rate, effects)
+        vx, vz = self._body_velocity(slip, delta, pitch_rate, P, B, None if sink is None else (sink, pitch))
         ax = _savgol(vx.mean(axis=1), self._accel_window, 1, self.dt)
         az = _savgol(vz.mean(axis=1), self._accel_window, 1, self.dt)
         f = s.accel - bias
         pitch = _savgol(np.unwrap(np.arctan2(-(f[:, 0] - ax), f[:, 1] - az)), self._window, 0, self.dt)
         pitch_rate = _savgol(pitch, self._window, 1, self.dt)
-        vx, vz = self._body_velocity(slip, delta, pitch_rate, P, B)
+        vx, vz = self._body_velocity(slip, delta, pitch_rate, P, B, None if sink is None else (sink, pitch))
         meas["pitch_rate"] = s.gyro
         pred["pitch_rate"] = pitch_rate + gyro_bias
 
@@ -597,7 +612,7 @@ class RoverReplay(ChangeLocation):
         pred["vz_front_middle"] = vz[:, 2] - vz[:, 1]
         meas["vz_middle_rear"] = zeros
         pred["vz_middle_rear"] = vz[:, 1] - vz[:, 0]
-        self._last_state = {"load": load, "slip": slip, "drawbar_pull": dp, "delta": delta}
+        self._last_state = {"load": load, "slip": slip, "drawbar_pull": dp, "delta": delta, "sinkage": sinkage}
         for name, value in pred.items():
             if not np.all(np.isfinite(value)):
                 pred[name] = np.where(np.isfinite(value), value, 0.0)
@@ -663,8 +678,12 @@ class RoverReplay(ChangeLocation):
     def predict(
         self, effects: Mapping[str, Mapping[str, float]], nuisance: Mapping[str, float]
     ) -> dict[str, FloatArray]:
-        """Predicted channels with ``effects`` added (``{}``: nominal); no nuisance parameters."""
-        _, pred = self._compute(effects)
+        """Predicted channels with ``effects`` added (``{}``: nominal) and the :data:`NUISANCE` values ``nuisance``."""
+        self._sinkage_scale = float(nuisance.get("sinkage_scale", 1.0))
+        try:
+            _, pred = self._compute(effects)
+        finally:
+            self._sinkage_scale = 1.0
         return pred
 
 
@@ -702,8 +721,12 @@ def build_model_from_series(
     warmup: float = 3.0,
     source: str = "",
     progress: Progress = None,
+    nuisance: Sequence[str] = (),
 ) -> RoverReplay:
-    """The replay model of already-read sensor streams (vehicle, soil and noise from the config)."""
+    """The replay model of already-read sensor streams (vehicle, soil, sinkage and noise from the config).
+
+    ``nuisance``: names of :data:`NUISANCE` to fit in every model (their priors: the nominal tolerances).
+    """
     from terrain_estimation.ros.rover import vehicle_params
 
     est, sim = _config_values(config)
@@ -722,6 +745,9 @@ def build_model_from_series(
         warmup=warmup,
         noise=noise,
         source=source,
+        sinkage=bool(sim["plant.wheel_sinkage"]),
+        sinkage_loading_time=float(sim["plant.sinkage_loading_time"]),
+        nuisance=nuisance,
     )
 
 
@@ -732,6 +758,7 @@ def build_model(
     namespace: str | None = None,
     progress: Progress = None,
     warmup: float = 3.0,
+    nuisance: Sequence[str] = (),
 ) -> RoverReplay:
     """The replay model of a rover bag (CONTRACT.md rover topics) for the attribution engine.
 
@@ -741,6 +768,7 @@ def build_model(
         namespace: the bag's namespace (default ``/rover``).
         progress: called with progress lines.
         warmup: seconds left out at the start.
+        nuisance: names of :data:`NUISANCE` to fit in every model.
 
     Raises:
         Sim2RealError: missing topic or joint, non-finite values, single-axis load cells, too short.
@@ -750,4 +778,6 @@ def build_model(
     if progress is not None:
         progress(f"reading {bag}")
     series = read_rover_bag(bag, namespace=namespace or "/rover", joints=joints)
-    return build_model_from_series(series, config=config, warmup=warmup, source=str(bag), progress=progress)
+    return build_model_from_series(
+        series, config=config, warmup=warmup, source=str(bag), progress=progress, nuisance=nuisance
+    )

@@ -1,8 +1,9 @@
-"""The rover replay's soil: DP(W, i) and τ_R(W, i) as the plant evaluates them, and their per-wheel inversion.
+"""The rover replay's soil: DP(W, i), τ_R(W, i) and the sinkage z*(W, i), and the per-wheel inversion.
 
 :class:`_SoilModel` is the plant's terramechanics surrogate with the catalogue's soil effects (slip-sinkage,
-grousers, a changed soil); :func:`_solve_wheels` finds each wheel's load and slip from its load cell and resistive
-torque (relation 3 of the docstring of :mod:`terrain_analysis.sim2real.rover`).
+grousers, a changed soil) and the steady sinkage of the same Wong–Reece soil (:class:`_DepthTable`);
+:func:`_solve_wheels` finds each wheel's load and slip from its load cell and resistive torque (relation 3 of the
+docstring of :mod:`terrain_analysis.sim2real.rover`). How the sinkage moves: :mod:`.rover_sinkage`.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ FloatArray = NDArray[np.float64]
 
 _LOCAL_ORDER = 4
 _FIT_GRID_POINTS = 30  # per axis, of the surrogate fit of a changed soil or grouser wheel
+_DEPTH_LOAD_STEP = 1.0  # N, load step of the nominal sinkage table
+_DEPTH_SLIP_POINTS = 51  # slips 0, 0.02, …, 1 of the nominal sinkage table
 
 
 class _Polynomial:
@@ -86,6 +89,41 @@ class _SurrogateFit:
         return _Polynomial(table)
 
 
+class _DepthTable:
+    """r (1 − cos θ0(W, |i|)) (m) of a soil and wheel on a (W, |i|) grid, bilinear in between.
+
+    θ0 is the Wong–Reece contact angle that carries W at the slip ([RB] eq. 7, the
+    one of the replay's soil forces); r (1 − cos θ0) is the depth of the wheel's
+    lowest point below the undisturbed surface. The grid (1 N × 0.02, W to the
+    surrogate's 200 N edge, loads beyond it held there) is fine enough that the
+    depth's slope in W, which sets the sinking rate of a wheel whose load changes,
+    changes by < 1 % from one cell to the next at 20–100 N. One 10⁴-point solve per
+    replay.
+    """
+
+    def __init__(self, soil: Any, wheel: Any, load_cap: float) -> None:
+        from vehicle_sim.terrain.wong_reece import contact_angle
+
+        self.load = np.arange(0.0, load_cap + 0.5 * _DEPTH_LOAD_STEP, _DEPTH_LOAD_STEP)
+        self.slip = np.linspace(0.0, 1.0, _DEPTH_SLIP_POINTS)
+        lm, sm = np.meshgrid(self.load, self.slip, indexing="ij")
+        theta = contact_angle(lm.ravel(), sm.ravel(), soil, wheel, overload="saturate")
+        self.values = (wheel.radius * (1.0 - np.cos(np.asarray(theta, dtype=float)))).reshape(lm.shape)
+
+    def __call__(self, load: FloatArray, slip: FloatArray) -> FloatArray:
+        """Depth (m) at loads ``load`` (N) and slip magnitudes ``slip`` (–), same shape."""
+        fw = np.clip(load / _DEPTH_LOAD_STEP, 0.0, self.load.size - 1.0)
+        fs = np.clip(slip * (self.slip.size - 1.0), 0.0, self.slip.size - 1.0)
+        iw = np.minimum(fw.astype(np.intp), self.load.size - 2)
+        js = np.minimum(fs.astype(np.intp), self.slip.size - 2)
+        a, b = fw - iw, fs - js
+        v = self.values
+        low = v[iw, js] * (1.0 - b) + v[iw, js + 1] * b
+        high = v[iw + 1, js] * (1.0 - b) + v[iw + 1, js + 1] * b
+        out: FloatArray = low * (1.0 - a) + high * a
+        return out
+
+
 @dataclass(frozen=True)
 class _SoilVariant:
     """A soil and grouser height whose forces differ from the nominal surrogate."""
@@ -104,6 +142,12 @@ class _SoilModel:
     WR(variant) on 100 × 100 points, and the fit of a sum is the sum of the
     fits, so only the grid differs (and the surrogate's fit error, 0.1–0.3 N
     of DP near the operating point, is reproduced rather than ignored).
+
+    The steady sinkage z*(W, i) (:meth:`depth`) is the same Wong–Reece soil's:
+    the nominal soil's from a fine table (:class:`_DepthTable`); a variant's is
+    the nominal table times the fit, on the same 30 × 30 grid, of the ratio of
+    the two depths (both grow as ≈ W^(2/(2n+1)), so their ratio is smooth where
+    their difference is not).
     """
 
     def __init__(self, soil: Any, params: RoverParams) -> None:
@@ -122,12 +166,16 @@ class _SoilModel:
         self.local = _SurrogateFit()
         self._base = self._wong_reece(soil, self.wheel)
         self._cache: dict[tuple[Any, float], tuple[_Polynomial, _Polynomial]] = {}
+        self.depth_table = _DepthTable(soil, self.wheel, self.load_cap)
+        self._depth_cache: dict[tuple[Any, float], _Polynomial] = {}
 
-    def _wong_reece(self, soil: Any, wheel: Any) -> tuple[FloatArray, FloatArray]:
+    def _wong_reece(self, soil: Any, wheel: Any) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(DP, τ_R, depth r (1 − cos θ0)) of ``soil`` and ``wheel`` on the 30 × 30 grid."""
         from vehicle_sim.terrain.wong_reece import wheel_forces
 
         forces = wheel_forces(self.local.grid_load, self.local.grid_slip, soil, wheel, overload="saturate")
-        return np.asarray(forces.drawbar_pull, dtype=float), np.asarray(forces.resistive_torque, dtype=float)
+        depth = wheel.radius * (1.0 - np.cos(np.asarray(forces.contact_angle, dtype=float)))
+        return np.asarray(forces.drawbar_pull, dtype=float), np.asarray(forces.resistive_torque, dtype=float), depth
 
     def polynomials(self, variant: _SoilVariant | None) -> tuple[_Polynomial, _Polynomial]:
         """(DP, τ_R) polynomials in (|i|, W) of the nominal soil (None) or a variant."""
@@ -140,12 +188,25 @@ class _SoilModel:
             if len(self._cache) > 64:
                 self._cache.clear()
             wheel = RigidWheel(radius=self.params.wheel_radius + variant.grouser_height, width=self.params.wheel_width)
-            dp, tau = self._wong_reece(variant.soil, wheel)
+            dp, tau, depth = self._wong_reece(variant.soil, wheel)
             self._cache[key] = (
                 self.nominal[0] + self.local.fit(dp - self._base[0]),
                 self.nominal[1] + self.local.fit(tau - self._base[1]),
             )
+            if len(self._depth_cache) > 64:
+                self._depth_cache.clear()
+            self._depth_cache[key] = self.local.fit(depth / np.maximum(self._base[2], 1e-9))
         return self._cache[key]
+
+    def _depth_ratio(self, variant: _SoilVariant | None) -> _Polynomial | None:
+        """The fitted depth ratio z*(variant)/z*(nominal) in (|i|, W) (None for the nominal soil)."""
+        if variant is None or (variant.soil == self.soil and variant.grouser_height == 0.0):
+            return None
+        key = (variant.soil, round(variant.grouser_height, 12))
+        if key not in self._depth_cache:
+            self._cache.pop(key, None)
+            self.polynomials(variant)
+        return self._depth_cache[key]
 
     def forces(
         self,
@@ -192,6 +253,36 @@ class _SoilModel:
             dp = dp / scale
             tau = tau / scale
         return dp, tau
+
+    def depth(
+        self,
+        load: FloatArray,
+        slip: FloatArray,
+        *,
+        sinkage: float = 0.0,
+        grouser_height: float = 0.0,
+        variants: Sequence[tuple[_SoilVariant | None, FloatArray | float]] = ((None, 1.0),),
+    ) -> FloatArray:
+        """Steady sinkage z* (m) of the wheel centre below the undisturbed surface at (W, i), as the plant sinks it.
+
+        z* = r_e (1 − cos θ0(W, |i|)) − h_g, with the slip-sinkage load W (1 + c|i|),
+        the grouser tips' slip and cylinder r_e = r_w + h_g, a skidding wheel at |i|,
+        and the soils of ``variants`` blended with their weights (as :meth:`forces`).
+        """
+        load = np.maximum(load, 0.0)
+        slip = np.abs(np.clip(slip, -1.0, 1.0))
+        model_load = load * (1.0 + sinkage * slip) if sinkage > 0.0 else load
+        if grouser_height > 0.0:
+            r = self.params.wheel_radius
+            slip = 1.0 - (1.0 - slip) * r / (r + grouser_height)
+        capped = np.minimum(model_load, self.load_cap)
+        nominal = self.depth_table(capped, slip)
+        depth = np.zeros_like(capped)
+        for variant, weight in variants:
+            ratio = self._depth_ratio(variant)
+            depth = depth + weight * (nominal if ratio is None else nominal * ratio(slip, capped))
+        out: FloatArray = np.maximum(depth - grouser_height, 0.0)
+        return out
 
 
 _SLIP_BOUNDS = (-0.95, 0.999)  # slip range of the per-wheel inversion

@@ -1,0 +1,106 @@
+"""How the rover replay's wheels sink: the depth s_j(t) of each wheel centre below the undisturbed surface.
+
+A wheel on deformable soil rides below the surface by its sinkage, and a wheel
+whose sinkage changes moves at ṡ_j across the surface it rolls on, which the
+replay's wheel-velocity relation (relation 3 of :mod:`terrain_analysis.sim2real.rover`)
+must add: its centre moves at v_t along the terrain tangent and at −ṡ cos γ along
+the terrain normal (the sinkage is vertical; v_t, from the slip, is the speed along
+the tangent). The ż0^R differences carry the differences of the wheels' ṡ (≈ 2e-4 m
+per N of load change on [RB] Table II's soil, so a wheel whose load changes by
+1 N/s sinks at 2e-4 m/s, ≈ 7 σ of the channels' noise).
+
+The steady depth z*(W, i) is the replay's soil's own Wong–Reece solution
+(:meth:`~terrain_analysis.sim2real.rover_soil._SoilModel.depth`), at the loads and
+slips the replay infers. The depth follows it as a plastic soil does:
+
+* a rising load presses the soil under the rim within the config's loading time
+  τ (simulator section ``sinkage_loading_time``): a critically damped lag
+  s̈ = ω² (z* − s) − 2ω ṡ with ω = 1/τ;
+* a falling load leaves a compacted rut that does not spring back: the rim climbs
+  onto fresh soil over about one contact length l = r_e sin θ0 of travel, the same
+  lag with ω = |v_t| / l (at most 1/τ), l of the deeper of s and z* (≥ 1 mm).
+
+z* is held over each sample interval and the lag solved in closed form within it,
+so s and ṡ are continuous.
+
+The bag does not say how deep the wheels sat when it started (a rut left by a
+heavier load before it would keep them deeper), and its first samples may not be
+the wheels' state (streams that start late, a delayed stream's first values, the
+edge of a smoothing window). The sinkage is held at rest over the first
+:data:`START_WINDOW` (inside the replay's 3 s warm-up) at z* of the window's end,
+and the lag runs from there. A start too deep would decay at the slow unloading
+rate over many seconds: started at z* of the first sample, the front wheel of a
+rolling-terrain run (its first load 1 N off) had ṡ off by 5e-6 m/s on average
+over 20 s (0.2 σ of the ż0^R channels), and a run with delayed sensors (zero loads
+over the first 60 ms) sank 1.5 mm too deep; started at the window's end, the
+replay of the plant's own z* repeats its sinkage to 1e-12 m after the warm-up.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+__all__ = ["sinkage_motion"]
+
+_MIN_CONTACT = 1.0e-3  # m, shortest contact length of the unloading rate
+START_WINDOW = 1.0
+"""s, the start of the bag over which the sinkage is held at z* of its end (module docstring)."""
+
+
+def sinkage_motion(
+    t: FloatArray,
+    target: FloatArray,
+    speed: FloatArray,
+    *,
+    loading_time: float,
+    radius: float,
+    grouser_height: float = 0.0,
+) -> tuple[FloatArray, FloatArray]:
+    """(s, ṡ) (m, m/s), (N, W) each, of wheels whose steady depth is ``target`` (N, W) at the times ``t`` (N,).
+
+    ``speed``: each wheel centre's speed along the terrain (m/s), (N, W); ``radius``: the
+    wheel's radius r_w (m); ``grouser_height``: h_g (m), the contact cylinder being r_w + h_g
+    (module docstring).
+    """
+    n, wheels = target.shape
+    s = np.zeros((n, wheels))
+    rate = np.zeros((n, wheels))
+    if n == 0:
+        return s, rate
+    loading = 1.0 / loading_time
+    r_e = radius + grouser_height
+    steps = np.diff(t).tolist()
+    first = min(int(np.searchsorted(t, t[0] + START_WINDOW)), n - 1)
+    for j in range(wheels):
+        z = target[:, j].tolist()
+        v = np.abs(speed[:, j]).tolist()
+        depth, velocity = z[first], 0.0
+        out_s, out_rate = [depth] * (first + 1), [velocity] * (first + 1)
+        for k in range(first, n - 1):
+            dt = steps[k]
+            goal = z[k]
+            if goal >= depth:
+                omega = loading
+            else:
+                cos0 = 1.0 - min((depth + grouser_height) / r_e, 1.0)
+                contact = max(r_e * math.sqrt(max(1.0 - cos0 * cos0, 0.0)), _MIN_CONTACT)
+                omega = min(v[k] / contact, loading)
+            if omega > 0.0:
+                # e = s − z* = (A + B τ) e^(−ωτ), A = e0, B = ė0 + ω e0.
+                a = depth - goal
+                b = velocity + omega * a
+                decay = math.exp(-omega * dt)
+                position = a + b * dt
+                depth, velocity = goal + position * decay, (b - omega * position) * decay
+            else:
+                depth += velocity * dt
+            out_s.append(depth)
+            out_rate.append(velocity)
+        s[:, j] = out_s
+        rate[:, j] = out_rate
+    return s, rate
