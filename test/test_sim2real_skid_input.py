@@ -6,16 +6,17 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from test_sim2real_skid_steer import _data
 
 from terrain_analysis.sim2real.skid_steer import (
     DIAGNOSIS_STEP,
     SkidSteerReplay,
-    bag_data_from_arrays,
     input_bandwidth,
     smooth_wheel_speeds,
     vehicle_from_config,
     with_vehicle,
 )
+from terrain_analysis.sim2real.skid_steer_bag import SkidSteerBagData
 from vehicle_sim.effects import effects_for
 from vehicle_sim.plants.skid_steer import MANOEUVRES, SkidSteerSensors, SkidSteerVehicle, simulate_skid_steer
 
@@ -50,20 +51,12 @@ def test_smoothing_is_zero_phase_and_leaves_slow_motion_alone():
     np.testing.assert_array_equal(smooth_wheel_speeds(t, slow, 60.0), slow)  # above Nyquist: as is
 
 
-def _launch(seed: int) -> SkidSteerReplay:
+def _launch(seed: int) -> SkidSteerBagData:
     # The nominal model's vehicle (brush tire) from rest; an exact IMU, so that only the encoder's
     # quantisation and report noise (and the replay's own error) stand between the bag and the replay.
     sensors = replace(SkidSteerSensors.noiseless(), encoder_counts_per_revolution=4096, motor_velocity_noise_std=0.02)
     scenario = MANOEUVRES["straight_acceleration"](vehicle=SkidSteerVehicle(), effects=effects_for("skid_steer", {}))
-    result = simulate_skid_steer(replace(scenario, duration=4.0, sensors=sensors), seed)
-    return bag_data_from_arrays(
-        result.t,
-        result.linear_acceleration,
-        result.angular_velocity[:, 2],
-        result.t,
-        result.motor_velocity,
-        transmission_ratio=VEHICLE.transmission_ratio,
-    )
+    return _data(simulate_skid_steer(replace(scenario, duration=4.0, sensors=sensors), seed))
 
 
 @pytest.mark.parametrize("seed", [1, 2])
