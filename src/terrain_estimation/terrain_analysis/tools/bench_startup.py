@@ -38,9 +38,9 @@ from terrain_estimation.tools import estimate as te
 from terrain_estimation.tools import estimate_replay as replay
 from terrain_estimation.vehicles import get_vehicle
 keep = replay._keep
-def first(run, outputs, produced, log_time_ns):
-    keep(run, outputs, produced, log_time_ns)
-    if run.outputs:
+def first(run, *args):
+    keep(run, *args)
+    if run.outputs or run.streamed:
         print("FIRST", time.process_time(), flush=True)
         os._exit(0)
 replay._keep = first
@@ -53,12 +53,19 @@ print("NONE", time.process_time(), flush=True)
 
 
 def _first_estimate(vehicle: str, bag: Path) -> tuple[float, float]:
-    """(wall, CPU) seconds from a fresh ``python`` to the first estimate kept from ``bag`` (NaN: none).
+    """(wall, CPU) seconds from a fresh ``python`` to the first estimate kept from ``bag`` (NaN: the bag gave none).
 
-    The child exits as soon as it prints the first estimate's CPU time, so its run is the wall time."""
+    The child exits as soon as it prints the first estimate's CPU time, so its run is the wall time.
+
+    Raises:
+        RuntimeError: the child failed (its exit status and the end of its stderr): a broken benchmark
+            must not print NaN as if the estimator had produced nothing.
+    """
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", _CHILD, vehicle, str(bag)], capture_output=True, text=True)
     wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"start-up benchmark of {vehicle} on {bag}: exit {proc.returncode}\n{proc.stderr[-2000:]}")
     found = [line.split() for line in proc.stdout.splitlines() if line.startswith("FIRST")]
     return (wall, float(found[0][1])) if found else (math.nan, math.nan)
 

@@ -103,6 +103,7 @@ import numpy as np
 from terrain_estimation.estimators.soil_change import ChangeAlarm, SoilChangeDetector
 from terrain_estimation.estimators.soil_filter_step import FilterSteps
 from terrain_estimation.estimators.soil_road import _EPS_T, _HDOT_MAX_WINDOW_S, ProfileRoad, _grid_offsets
+from terrain_estimation.estimators.soil_road_fit import warm_up_fits
 from terrain_estimation.estimators.soil_stiffness_config import (
     _P0_LRV,
     _P0_QUARTER_CAR,
@@ -263,6 +264,8 @@ class SoilStiffnessEstimator(ProfileRoad, FilterSteps):
         self._feedthrough = bool(np.any(self.model.profile_error_gains(np.zeros(n))[1]))
         self._smooth_half_w = 0.5 * cfg.profile_smoothing_s
         self._hdot_fit = self._feedthrough and cfg.hdot_window_m > 0.0
+        if self._hdot_fit:
+            warm_up_fits()
         # How far before a step's start the profile is kept (see _prune).
         self._keep_s = max(self._smooth_half_w, _HDOT_MAX_WINDOW_S if self._hdot_fit else 0.0)
         # R = √R √Rᵀ of the first ``rows`` measurements and the gain matrix
