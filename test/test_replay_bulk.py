@@ -8,7 +8,9 @@ every kind the checks know (wrong frame, a stamp ahead of the clock, duplicated,
 that went back for good, NaN and infinite fields, a glitch beyond the accelerometer's range, covariances not
 finite, not symmetric or not measured, an accelerometer in g for a while, another frame length) are slipped
 into the shipped quarter-car bag: both paths must count the same rejections and write the same estimates,
-bit for bit.
+bit for bit. The bulk path takes runs of profile samples together (the guard's stamp order over the run, the
+estimator's buffer filled up to the sample that completes a step); the tampered samples break runs where
+the guard or the estimator (a stamp 1 ns after the one before) rejects a sample.
 """
 
 from __future__ import annotations
@@ -53,6 +55,10 @@ def _tamper(msg: Any, topic: str, n: int, previous: dict[str, int]) -> Any:
             msg.header.stamp = ns_to_stamp(stamp + YEAR_NS)
         elif n == 80:
             msg.header.stamp = ns_to_stamp(previous[topic])  # a duplicate
+        elif n in (2500, 2501):
+            # 1 ns after the one before: the guard's order passes it, the estimator's tolerance not (in a run)
+            msg.header.stamp = ns_to_stamp(previous[topic] + 1)
+            stamp = previous[topic] + 1
         elif 200 <= n < 205:
             msg.header.stamp = ns_to_stamp(stamp - 1_000_000_000)  # out of order, a few
         elif 1000 <= n < 1060:
@@ -109,12 +115,25 @@ def test_bulk_and_message_paths_reject_the_same_and_estimate_the_same(
 
     def counting(*args: Any) -> Any:
         out = original(*args)
-        decoded.append(len(out))
+        decoded.append(len(out[0]))
+        return out
+
+    taken = []
+    original_run = estimate_replay._take_run
+
+    def counting_runs(*args: Any) -> int:
+        out = original_run(*args)
+        taken.append(out)
         return out
 
     monkeypatch.setattr(estimate_replay, "_decode_window", counting)
+    monkeypatch.setattr(estimate_replay, "_take_run", counting_runs)
     bulk = estimate_bag(path, vehicle)
     assert sum(decoded) > 0.8 * bulk.inputs_read  # the bulk path did run: profile and accelerometers
+    # ... and most profile samples went in runs (the guard's order and the estimator's buffer, per run)
+    assert sum(taken) > 0.7 * bulk.topics_read[next(t for t in bulk.topics_read if t.endswith("terrain/profile"))]
+    if bag == "tampered":
+        assert 0 in taken  # a run whose first sample the guard did not accept: it went one by one
     previous = estimate_bag(path, vehicle, bulk=False)
     assert bulk.rejected == previous.rejected
     assert (bulk.accepted, bulk.inputs_read, bulk.restarts) == (

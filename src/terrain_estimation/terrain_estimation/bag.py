@@ -26,9 +26,10 @@ and the same messages always give the same bytes.
 
 from __future__ import annotations
 
+import bisect
 import functools
-import heapq
 import importlib
+import operator
 import os
 import re
 import shutil
@@ -62,6 +63,7 @@ __all__ = [
     "MissingTopicsError",
     "read_bag",
     "read_bag_raw",
+    "read_bag_raw_batches",
     "RawTally",
     "remove_stale_partials",
     "require_topics",
@@ -299,18 +301,35 @@ class RawTally:
         self.first_error = self.first_error or exc
 
 
+RawItem = tuple[Any, int, bytes, Callable[[bytes], Any]]
+
+
 def read_bag_raw(
     path: str | os.PathLike[str],
     topics: Iterable[str] | None = None,
     *,
     types: Mapping[str, str] | None = None,
     tally: RawTally | None = None,
-) -> Iterator[tuple[Any, int, bytes, Callable[[bytes], Any]]]:
+) -> Iterator[RawItem]:
     """:func:`read_bag` before decoding: ``(connection, log time ns, bytes, decoder)`` in recorded order.
 
     The caller decodes (``decoder(bytes)``, the nodes' decoder of the topic's class, or in bulk) and records
     in ``tally`` (:meth:`RawTally.undecodable`) the messages it could not; the errors are :func:`read_bag`'s.
     """
+    for batch in read_bag_raw_batches(path, topics, types=types, tally=tally):
+        yield from batch
+
+
+def read_bag_raw_batches(
+    path: str | os.PathLike[str],
+    topics: Iterable[str] | None = None,
+    *,
+    types: Mapping[str, str] | None = None,
+    tally: RawTally | None = None,
+) -> Iterator[list[RawItem]]:
+    """:func:`read_bag_raw`'s messages in lists, in the same order, read (and counted in ``tally``) a list at a
+    time: an MCAP bag's messages up to the next chunk's first log time (:func:`_fast_batches`), else one by
+    one. A storage error is raised where :func:`read_bag_raw` raises it: after the same messages."""
     from rclpy.serialization import deserialize_message  # adapters layer: rclpy is fine here
 
     from terrain_estimation.ros.cdr import decoder_for
@@ -337,11 +356,15 @@ def read_bag_raw(
             connections = [c for c in connections if c.id in decoders]
             if not connections:
                 return  # rosbags reads every topic when given no connections
-            fast = _fast_messages(reader, connections) if _FAST_READ else None
-            for conn, timestamp, raw in fast or reader.messages(connections=connections):
-                topic = conn.topic
-                tally.read += 1
-                yield conn, timestamp, bytes(raw), decoders[conn.id]
+            fast = _fast_batches(reader, connections) if _FAST_READ else None
+            batches = fast or ([item] for item in reader.messages(connections=connections))
+            for batch in batches:
+                if not batch:
+                    continue
+                items = [(conn, timestamp, bytes(raw), decoders[conn.id]) for conn, timestamp, raw in batch]
+                topic = items[-1][0].topic
+                tally.read += len(items)
+                yield items
             # rosbags stops without a word at a chunk it cannot parse: hold the count to the metadata's
             listed = sum(c.msgcount for c in connections)
             seen = tally.read
@@ -360,15 +383,19 @@ def read_bag_raw(
         ) from exc
 
 
-def _fast_messages(reader: Reader, connections: list[Any]) -> Iterator[tuple[Any, int, bytes]] | None:
+def _fast_batches(reader: Reader, connections: list[Any]) -> Iterator[list[tuple[Any, int, bytes]]] | None:
     """``reader.messages(connections=connections)`` for a bag of one chunked MCAP file (what this project
-    writes), in fewer Python steps per message; None for any other bag (or rosbags' internals not as known).
+    writes), in lists and in fewer Python steps per message; None for any other bag (or rosbags' internals not
+    as known).
 
     rosbags 0.11 reads such a bag through ``Reader`` -> ``DirectoryReader`` -> ``McapReader``: per chunk, a
     generator (``msgsrc``) that checks and decompresses the chunk, parses its records one ``BytesIO`` at a
-    time and yields them sorted by log time, the chunks merged by ``heapq.merge``. This does the same with
-    the same checks, the same tuples (so the merge orders ties alike) and the same errors, parsing the
-    records in place (:func:`_chunk_messages`); the directory layer's connection matching is its own, copied.
+    time and yields them sorted by log time, after a first item at the chunk's start time, the chunks merged
+    by ``heapq.merge``. This does the same with the same checks, the same order and the same errors, parsing
+    the records in place (:func:`_chunk_messages`); the directory layer's connection matching is its own,
+    copied. A chunk is read once every message before its start time has been handed out (where the merge
+    reads it), and its messages merged into those not yet handed out by (log time, chunk offset), the merge's
+    order (each chunk's offset differs; within a chunk, its own order).
     """
     if not _rosbags_internals_known():
         return None  # another rosbags: its own loop, which is what this copies
@@ -397,12 +424,34 @@ def _fast_messages(reader: Reader, connections: list[Any]) -> Iterator[tuple[Any
         if conn is not None:
             connmap[x.id] = conn
     channel_map = {x.id: x for x in mcap.connections if x.id in connmap}
-    sources = [
-        _chunk_messages(chunk, channel_map, mcap.bio)
-        for chunk in mcap.chunks
-        if any(chunk.channel_count.get(cid, 0) for cid in channel_map)
-    ]
-    return ((connmap[c.id], t, data) for t, offset, c, data in heapq.merge(*sources) if offset)
+    chunks = [chunk for chunk in mcap.chunks if any(chunk.channel_count.get(cid, 0) for cid in channel_map)]
+    # The merge's order of the chunks' first items (start time, 0, None, None): by start time, ties in list order.
+    order = sorted(range(len(chunks)), key=lambda i: chunks[i].message_start_time)
+    return _merged_batches([chunks[i] for i in order], channel_map, connmap, mcap.bio)
+
+
+_TIME = operator.itemgetter(0)
+_TIME_AND_OFFSET = operator.itemgetter(0, 1)
+
+
+def _merged_batches(
+    chunks: Sequence[Any], channel_map: Mapping[int, Any], connmap: Mapping[int, Any], bio: Any
+) -> Iterator[list[tuple[Any, int, bytes]]]:
+    """The messages of ``chunks`` (in start-time order) in ``heapq.merge``'s order (:func:`_fast_batches`)."""
+    waiting: list[tuple[int, int, Any, bytes]] = []  # read, not handed out: sorted by (log time, offset)
+    for chunk in chunks:
+        cut = bisect.bisect_left(waiting, chunk.message_start_time, key=_TIME)
+        if cut:  # every later message is at or after this chunk's start
+            yield [(connmap[c.id], t, data) for t, _, c, data in waiting[:cut]]
+            del waiting[:cut]
+        messages = _chunk_messages(chunk, channel_map, bio)
+        if waiting and messages:  # overlapping chunks: merged where they overlap
+            overlap = bisect.bisect_right(messages, waiting[-1][0], key=_TIME)
+            waiting = sorted(waiting + messages[:overlap], key=_TIME_AND_OFFSET) + messages[overlap:]
+        else:
+            waiting.extend(messages)
+    if waiting:
+        yield [(connmap[c.id], t, data) for t, _, c, data in waiting]
 
 
 #: The rosbags releases whose reader internals :func:`_fast_messages` copies (constraints.txt pins 0.11.9).
@@ -424,20 +473,20 @@ def _rosbags_internals_known() -> bool:
     return version.startswith(_KNOWN_ROSBAGS)
 
 
-#: :func:`read_bag_raw` reads MCAP bags through :func:`_fast_messages` (False: through rosbags' own loop, as
+#: :func:`read_bag_raw` reads MCAP bags through :func:`_fast_batches` (False: through rosbags' own loop, as
 #: before; the benchmark's previous path).
 _FAST_READ = True
 _RECORD_SIZE = struct.Struct("<Q")
 _MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 
 
-def _chunk_messages(chunk: Any, channel_map: Mapping[int, Any], bio: Any) -> Iterator[Any]:
-    """rosbags' ``storage_mcap.msgsrc`` for a whole chunk (no time range), its records parsed in place."""
+def _chunk_messages(chunk: Any, channel_map: Mapping[int, Any], bio: Any) -> list[tuple[int, int, Any, bytes]]:
+    """rosbags' ``storage_mcap.msgsrc`` for a whole chunk (no time range), its records parsed in place: its
+    messages sorted by log time (stable), without the first item at the chunk's start time."""
     from rosbags.rosbag2.errors import ReaderError
     from rosbags.rosbag2.storage_mcap import decompress, read_exact
 
     # rosbags' Msg named tuples (timestamp, offset, connection, data) as plain tuples: they compare alike.
-    yield (chunk.message_start_time, 0, None, None)
     bio.seek(chunk.chunk_start_offset + 9 + 24)
     (crc,) = struct.unpack("<I", read_exact(bio, 4))
     bio.seek(chunk.chunk_start_offset + 9 + 40 + len(chunk.compression))
@@ -464,11 +513,8 @@ def _chunk_messages(chunk: Any, channel_map: Mapping[int, Any], bio: Any) -> Ite
         channel_id, _, log_time, _ = _MESSAGE_HEAD.unpack_from(data, body)
         if start <= log_time < stop and channel_id in channel_map:
             messages.append((log_time, offset, channel_map[channel_id], data[body + 22 : pos]))
-    yield from sorted(messages, key=_log_time)
-
-
-def _log_time(message: tuple[int, int, Any, bytes]) -> int:
-    return message[0]
+    messages.sort(key=_TIME)
+    return messages
 
 
 def _skipped_text(skipped: Mapping[str, int]) -> str:

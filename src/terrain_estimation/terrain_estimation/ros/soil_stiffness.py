@@ -546,20 +546,9 @@ _new = object.__new__
 #: :func:`estimate_to_msg` fills the slots itself: rclpy's field checks are off and the classes have the slots it fills.
 _DIRECT_OUTPUT = (
     not SoilStiffness()._check_fields
-    and list(SoilStiffness.__slots__)
-    == [
-        "_header",
-        "_k_s",
-        "_k_s_variance",
-        "_k_tot",
-        "_k_tot_variance",
-        "_terrain_class",
-        "_class_confidence",
-        "_converged",
-        "_soil_change_detected",
-        "_nis",
-        "_check_fields",
-    ]
+    and " ".join(SoilStiffness.__slots__)
+    == "_header _k_s _k_s_variance _k_tot _k_tot_variance _terrain_class _class_confidence _converged"
+    " _soil_change_detected _nis _check_fields"
     and list(Header.__slots__) == ["_stamp", "_frame_id", "_check_fields"]
     and list(Time.__slots__) == ["_sec", "_nanosec", "_check_fields"]
 )
@@ -681,19 +670,26 @@ class SoilStiffnessAdapter:
         return self._outputs()
 
     def handle_profile(self, stamp_ns: int, values: Sequence[float]) -> list[tuple[str, Any]]:
-        """:meth:`handle` of a profile sample given by its stamp and checked fields (``point.x``, ``point.z``).
-
-        The offline replay decodes the profile in bulk and hands its numbers here
-        (:attr:`field_handlers`); :meth:`handle` does the same with a message's.
-
-        Most profile samples (9 in 10 at 1 kHz against a 100 Hz filter) complete no
-        step: the estimator then made no estimate (every call drains them all) and
-        its fault, which only a step changes, is the one the last call reported,
-        so there is nothing to drain or report.
-        """
+        """:meth:`handle` of a profile sample given by its stamp and checked fields (``point.x``, ``point.z``)
+        (:attr:`field_handlers`). Most samples (9 in 10 at 1 kHz against a 100 Hz filter) complete no step: no
+        estimate was made (every call drains them all) and the fault, which only a step changes, is unchanged."""
         if self.estimator.add_profile_sample(stamp_ns * 1e-9, values[0], values[1]) is None:
             return []
         return self._outputs()
+
+    def handle_profile_run(self, stamps_ns: Sequence[int], values: Sequence[Sequence[float]]) -> list[tuple[int, Any]]:
+        """:meth:`handle_profile` of each sample in turn (:attr:`field_runs`): (index, outputs) of those with
+        outputs. The samples that complete no step are appended together (``add_profile_run``)."""
+        out: list[tuple[int, Any]] = []
+        i, n, append_run = 0, len(stamps_ns), self.estimator.add_profile_run
+        while i < n:
+            i = append_run(stamps_ns, values, i)
+            if i < n:
+                produced = self.handle_profile(stamps_ns[i], values[i])
+                if produced:
+                    out.append((i, produced))
+                i += 1
+        return out
 
     def handle_body(self, stamp_ns: int, values: Sequence[float]) -> list[tuple[str, Any]]:
         """:meth:`handle` of a body accelerometer sample given by its stamp and ``linear_acceleration.z``."""
@@ -708,9 +704,13 @@ class SoilStiffnessAdapter:
     @property
     def field_handlers(self) -> Mapping[str, Callable[[int, Sequence[float]], list[tuple[str, Any]]]]:
         """Input key -> the handler taking a message's stamp (ns) and its checked fields (the TopicSpec's
-        ``fields`` then ``gravity_fields``, in order) in place of the message: :meth:`handle` of that message,
-        without it."""
+        ``fields`` then ``gravity_fields``, in order) in place of the message: :meth:`handle` of that message."""
         return {"profile": self.handle_profile, "imu_body": self.handle_body, "imu_wheel": self.handle_wheel}
+
+    @property
+    def field_runs(self) -> Mapping[str, Callable[[Sequence[int], Any], list[tuple[int, Any]]]]:
+        """Input key -> the handler of a run of its samples (stamps, fields): the profile, unless profile-free."""
+        return {"profile": self.handle_profile_run} if hasattr(self.estimator, "add_profile_run") else {}
 
     def _outputs(self) -> list[tuple[str, Any]]:
         estimates = self._drain()
@@ -784,9 +784,7 @@ class SoilStiffnessAdapter:
 
     def _fault_errors(self) -> None:
         """The diagnostics' errors from the estimator's fault."""
-        # Runs for every input message (≈ 13 per filter step on the quarter
-        # car): the counters are only read when there is a fault to report,
-        # and an empty error list is left as it is.
+        # Runs for most input messages: the counters are read only for a fault, an empty list is left as it is.
         fault = self.estimator.fault
         h = self.health
         if fault:

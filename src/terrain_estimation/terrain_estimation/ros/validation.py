@@ -385,6 +385,9 @@ class _GravityWindow:
     def add(self, t: float, vector: tuple[float, ...]) -> None:
         samples = self.samples
         samples.append((t, vector))
+        if len(vector) == 1 and self.total is not None and not self._pops_to_exact:
+            self._add_one(t, vector[0])  # the same sums, one field
+            return
         if self.total is None:
             self.total = list(vector)
         else:
@@ -398,6 +401,22 @@ class _GravityWindow:
                 self._pops_to_exact -= 1
                 if not self._pops_to_exact:
                     self.total = [math.fsum(column) for column in zip(*(v for _, v in samples), strict=True)]
+
+    def _add_one(self, t: float, value: float) -> None:
+        """:meth:`add` of a one-field sample (already appended) with no sample beyond :data:`_EXACT_ABOVE` in."""
+        assert self.total is not None
+        samples = self.samples
+        total = self.total[0] + value
+        if not -_EXACT_ABOVE <= value <= _EXACT_ABOVE:
+            self._pops_to_exact = len(samples)
+        window_s = self.window_s
+        while t - samples[0][0] > window_s:
+            total -= samples.popleft()[1][0]
+            if self._pops_to_exact:
+                self._pops_to_exact -= 1
+                if not self._pops_to_exact:
+                    total = math.fsum(v[0] for _, v in samples)
+        self.total = [total]
 
     def mean(self) -> list[float] | None:
         """The mean vector, or None while the window spans less than half its length."""
@@ -418,6 +437,8 @@ def _norm(mean: list[float] | None) -> float | None:
         return None
     if max(map(abs, mean)) > 1e150:  # |mean|² would overflow (fuzzed input): what it gave, unwarned
         return math.inf
+    if len(mean) == 1:  # one field (the soil estimators' z): the dot product is the one product
+        return math.sqrt(mean[0] * mean[0])
     vector = np.array(mean)
     return math.sqrt(float(vector.dot(vector)))  # what np.linalg.norm computes, without its overhead
 
@@ -528,7 +549,7 @@ class InputGuard:
             if raw is not None:
                 self._usable_covariance[(key, path)] = raw
         if plan.gravity_fields:  # an accelerometer: its specific force
-            vector = tuple(float(v) for v in values[len(spec.fields) :])
+            vector = tuple(map(float, values[len(spec.fields) :]))
             rejection = self._check_specific_force(key, spec, plan, stamp_ns * 1e-9, vector)
             if rejection is not None:
                 self._last_stamp_ns[key] = stamp_ns  # the stream's order is still followed
@@ -602,6 +623,31 @@ class InputGuard:
         else:
             self.rejected[rejection.reason] = self.rejected.get(rejection.reason, 0) + 1
         return rejection
+
+    def order_only(self, key: str) -> bool:
+        """Whether, once :meth:`stateless_ok` passed a message of ``key``, only its stamp's order is left to
+        judge (no covariances, no accelerometer): :meth:`accept_run` may judge a run of them."""
+        plan = self._plan(key)
+        return not plan.covariances and not plan.gravity_fields
+
+    def accept_run(self, key: str, stamps_ns: Sequence[int]) -> int:
+        """:meth:`check_decoded` of consecutive messages of an :meth:`order_only` ``key`` (each passed by
+        :meth:`stateless_ok`), as long as it accepts them: each stamp after the one before (the first after the
+        key's last accepted). How many it accepted, counted as :meth:`check` counts; the first one it would
+        not accept (if any) is left to :meth:`check_decoded`, which names the reason."""
+        last = self._last_stamp_ns.get(key)
+        taken = 0
+        for stamp_ns in stamps_ns:
+            if last is not None and stamp_ns <= last:
+                break
+            last = stamp_ns
+            taken += 1
+        if taken:
+            self._last_stamp_ns[key] = stamps_ns[taken - 1]
+            if self._behind:
+                self._behind.pop(key, None)
+            self.accepted += taken
+        return taken
 
     def _plan(self, key: str) -> _InputPlan:
         spec = self.inputs[key]

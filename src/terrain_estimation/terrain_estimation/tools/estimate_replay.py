@@ -18,7 +18,12 @@ Two loops feed an adapter the input messages of a bag in recorded order, through
   sample the arrays do not pass (another length, frame or encapsulation, a non-finite field, a stamp
   ahead of the clock, a value out of bounds) and every other message go the previous path's way, one by
   one, so that a rejection names the same reason; ``test/test_replay_bulk.py`` checks that both paths
-  reject the same messages and give the same estimates.
+  reject the same messages and give the same estimates. Samples next to each other of a topic whose only
+  rule left is its stamps' order (the profile: no covariance, no accelerometer window), with a run handler
+  (``adapter.field_runs``), go together: the guard accepts the run up to its first stamp not after the one
+  before (:meth:`InputGuard.accept_run <terrain_estimation.ros.validation.InputGuard.accept_run>`; that one
+  and the rest go one by one) and the adapter takes them in one call, each sample as its own handler would.
+  The bag is read a chunk at a time (:func:`~terrain_estimation.bag.read_bag_raw_batches`).
 
 Both loops keep the estimates in ``run.outputs``, or hand each to ``Replay.sink`` as it is made (a run that
 writes them as they come: :mod:`terrain_estimation.tools.estimate_stream`); with ``Replay.truth`` the
@@ -36,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from terrain_estimation.bag import RawTally, read_bag, read_bag_raw
+from terrain_estimation.bag import RawTally, read_bag, read_bag_raw_batches
 from terrain_estimation.ros.framework import JudgedInputs
 from terrain_estimation.ros.validation import InputGuard, first_nonfinite
 
@@ -48,6 +53,8 @@ WINDOW = 1024
 _INT64_END = 2**63
 Undecodable = Callable[[str, int, BaseException], None]
 Handler = Callable[[int, Sequence[float]], list[tuple[str, Any]]]
+RunHandler = Callable[[Sequence[int], Sequence[Sequence[float]]], list[tuple[int, list[tuple[str, Any]]]]]
+"""A handler of a run of samples (stamps ns, checked fields): (index in the run, outputs) of those with outputs."""
 Sink = Callable[[str, Any, int], None]
 """Given each estimate kept, as it is made: (absolute topic, message, log time ns)."""
 TruthSink = Callable[[str, Any], None]
@@ -159,10 +166,14 @@ def replay_messages(r: Replay, truth_topics: Mapping[str, str], eager: dict[str,
 
 class _Lane:
     """An input topic :func:`replay_bulk` decodes and judges in bulk: its key, layout, the adapter's handler,
-    and how many of the decoded columns are checked fields (the rest: covariances, ``widths`` each)."""
+    how many of the decoded columns are checked fields (the rest: covariances, ``widths`` each), and the
+    adapter's handler of a run of its samples (``adapter.field_runs``; None: one by one)."""
 
-    def __init__(self, key: str, layout: Any, handler: Handler, checked: int, widths: Sequence[int]) -> None:
+    def __init__(
+        self, key: str, layout: Any, handler: Handler, checked: int, widths: Sequence[int], run: RunHandler | None
+    ) -> None:
         self.key, self.layout, self.handler, self.checked, self.widths = key, layout, handler, checked, tuple(widths)
+        self.run = run
 
 
 def _lanes(adapter: Any, guard: InputGuard | None, topics: Mapping[str, str]) -> dict[str, _Lane]:
@@ -170,6 +181,7 @@ def _lanes(adapter: Any, guard: InputGuard | None, topics: Mapping[str, str]) ->
     from terrain_estimation.ros.cdr import stamped_layout
 
     handlers: Mapping[str, Handler] = getattr(adapter, "field_handlers", None) or {}
+    runs: Mapping[str, RunHandler] = getattr(adapter, "field_runs", None) or {}
     if guard is None or not handlers:
         return {}
     lanes: dict[str, _Lane] = {}
@@ -184,7 +196,8 @@ def _lanes(adapter: Any, guard: InputGuard | None, topics: Mapping[str, str]) ->
             continue
         checked = len(fields) - len(spec.covariances)
         widths = [layout.dtype[f"v{i}"].shape[0] if layout.dtype[f"v{i}"].shape else 1 for i in range(len(fields))]
-        lanes[topic] = _Lane(key, layout, handler, checked, widths[checked:])
+        run = runs.get(key) if guard.order_only(key) else None
+        lanes[topic] = _Lane(key, layout, handler, checked, widths[checked:], run)
     return lanes
 
 
@@ -199,10 +212,19 @@ def replay_bulk(r: Replay) -> None:
     window: list[tuple[Any, int, bytes, Callable[[bytes], Any]]] = []
 
     def flush() -> None:
-        bulk = _decode_window(window, lanes, guard) if lanes else {}
-        for i, (conn, log_time_ns, raw, decode) in enumerate(window):
+        bulk, runs = _decode_window(window, lanes, guard) if lanes else ({}, {})
+        i, end = 0, len(window)
+        while i < end:
+            conn, log_time_ns, raw, decode = window[i]
+            i += 1
             topic = conn.topic
-            sample = bulk.get(i)
+            sample = bulk.get(i - 1)
+            last = runs.get(i - 1)
+            if last is not None:  # a run of samples left only their stamps' order to judge
+                taken = _take_run(run, adapter, lanes[topic], guard, judged, bulk, window, i - 1, last, outputs, sink)
+                if taken:
+                    i += taken - 1
+                    continue
             if sample is None:
                 try:
                     msg = decode(raw)
@@ -236,11 +258,50 @@ def replay_bulk(r: Replay) -> None:
         ticker.tick(run)
         window.clear()
 
-    for item in read_bag_raw(r.bag, r.read, types=r.types, tally=tally):
-        window.append(item)
-        if len(window) >= WINDOW:
-            flush()
+    for batch in read_bag_raw_batches(r.bag, r.read, types=r.types, tally=tally):
+        start = 0
+        while start < len(batch):  # windows of WINDOW messages, wherever the batches end
+            room = WINDOW - len(window)
+            window.extend(batch[start : start + room])
+            start += room
+            if len(window) >= WINDOW:
+                flush()
     flush()
+
+
+def _take_run(
+    run: Any,
+    adapter: Any,
+    lane: _Lane,
+    guard: Any,
+    judged: bool,
+    bulk: Mapping[int, tuple[int, list[float], list[np.ndarray]]],
+    window: Sequence[tuple[Any, int, bytes, Any]],
+    first: int,
+    last: int,
+    outputs: Mapping[str, str],
+    sink: Sink | None,
+) -> int:
+    """The lane samples ``window[first:last + 1]`` (a run of one :meth:`~InputGuard.order_only` topic that passed
+    the checks on arrays) as the one-by-one loop takes them, while the guard accepts them
+    (:meth:`~InputGuard.accept_run`), through the lane's run handler: how many it took (the next, if any, goes
+    the one-by-one way)."""
+    stamps = [bulk[j][0] for j in range(first, last + 1)]
+    taken = guard.accept_run(lane.key, stamps)
+    if not taken:
+        return 0
+    topic = window[first][0].topic
+    run.inputs_read += taken
+    run.topics_read[topic] = run.topics_read.get(topic, 0) + taken
+    if judged:  # (the guard's verdict is the same for the whole run: no accelerometer in it)
+        adapter.inputs_judged = guard.gravity_judged
+    run.accepted += taken
+    if taken < len(stamps):
+        del stamps[taken:]
+    assert lane.run is not None
+    for offset, produced in lane.run(stamps, [bulk[j][1] for j in range(first, first + taken)]):
+        _keep(run, outputs, produced, window[first + offset][1], sink)
+    return taken
 
 
 def _no_truth(topic: str, _msg: Any) -> None:
@@ -249,11 +310,13 @@ def _no_truth(topic: str, _msg: Any) -> None:
 
 def _decode_window(
     window: Sequence[tuple[Any, int, bytes, Any]], lanes: Mapping[str, _Lane], guard: InputGuard | None
-) -> dict[int, tuple[int, list[float], list[np.ndarray]]]:
+) -> tuple[dict[int, tuple[int, list[float], list[np.ndarray]]], dict[int, int]]:
     """Index in ``window`` -> (stamp ns, checked fields, covariances) of the lane samples that passed the
-    checks on arrays (:meth:`~terrain_estimation.ros.validation.InputGuard.stateless_ok`)."""
+    checks on arrays (:meth:`~terrain_estimation.ros.validation.InputGuard.stateless_ok`), and, for the lanes
+    with a run handler, the runs of two or more such samples next to each other: first index -> last."""
     assert guard is not None
     out: dict[int, tuple[int, list[float], list[np.ndarray]]] = {}
+    runs: dict[int, int] = {}
     by_topic: dict[str, list[int]] = {}
     for i, item in enumerate(window):
         by_topic.setdefault(item[0].topic, []).append(i)
@@ -269,6 +332,8 @@ def _decode_window(
         ok = match & guard.stateless_ok(lane.key, stamp_ns, clock_ns, checked)
         stamps, numbers = stamp_ns.tolist(), checked.tolist()
         passed = np.flatnonzero(ok).tolist()
+        if lane.run is not None:
+            _find_runs([rows[j] for j in passed], runs)
         if not lane.widths:
             for j in passed:
                 out[rows[j]] = (stamps[j], numbers[j], [])
@@ -278,4 +343,17 @@ def _decode_window(
         for j in passed:
             row = values[j]
             out[rows[j]] = (stamps[j], numbers[j], [row[a:b] for a, b in spans])
-    return out
+    return out, runs
+
+
+def _find_runs(indices: Sequence[int], runs: dict[int, int]) -> None:
+    """The runs of two or more consecutive numbers in the increasing ``indices`` into ``runs``: first -> last."""
+    start = previous = -2
+    for index in indices:
+        if index != previous + 1:
+            if previous > start:
+                runs[start] = previous
+            start = index
+        previous = index
+    if previous > start:
+        runs[start] = previous
