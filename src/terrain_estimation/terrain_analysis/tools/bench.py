@@ -97,7 +97,14 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from terrain_analysis.tools.bench_common import BAGS_DIR, BenchConfig, add_json_arguments, machine_info, write_json
+from terrain_analysis.tools.bench_common import (
+    BAGS_DIR,
+    BenchConfig,
+    add_json_arguments,
+    machine_info,
+    parse_bench_arguments,
+    write_json,
+)
 from terrain_analysis.tools.bench_monte_carlo import bench_qc_monte_carlo, format_qc_monte_carlo
 from terrain_analysis.tools.bench_quarter_car import (
     BAGS,
@@ -126,7 +133,6 @@ from terrain_analysis.tools.bench_vehicles import (
     format_skid,
 )
 from terrain_estimation.cli import cli_main
-from terrain_estimation.outputs import check_output_path
 
 __all__ = [
     "ROW_LABELS",
@@ -225,9 +231,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "a fresh process to the first estimate of terrain-estimate, every vehicle (warm cache)"
         ),
     )
-    args = parser.parse_args(argv)
-    if args.json:  # refused before the run, not after it
-        check_output_path(args.json, overwrite=args.overwrite, kind="file")
+    args = parse_bench_arguments(parser, argv)
     cfg = BenchConfig.quick() if args.quick else BenchConfig()
     sections: dict[str, tuple[Callable[[], dict[str, Any]], Callable[[dict[str, Any]], str]]] = {
         "skid_replay": (lambda: bench_skid_replay(cfg, Path(args.bags)), format_skid_replay),

@@ -145,6 +145,17 @@ def add_json_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true", help="--json may replace an existing regular file")
 
 
+def parse_bench_arguments(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> argparse.Namespace:
+    """Parse a benchmark's command line (with :func:`add_json_arguments`); a ``--json`` path that would be refused
+    is refused now, before the run, not after it."""
+    from terrain_estimation.outputs import check_output_path
+
+    args = parser.parse_args(argv)
+    if args.json:
+        check_output_path(args.json, overwrite=args.overwrite, kind="file")
+    return args
+
+
 def write_json(path: str | os.PathLike[str], figures: Any, *, overwrite: bool = False) -> Path:
     """Write ``figures`` to ``path``: refused (nothing written) where something exists and ``overwrite`` is not
     given, and where the path is a directory (:func:`terrain_estimation.outputs.check_output_path`)."""

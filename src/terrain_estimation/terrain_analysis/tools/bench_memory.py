@@ -50,9 +50,8 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from terrain_analysis.tools.bench_common import add_json_arguments, machine_info, write_json
+from terrain_analysis.tools.bench_common import add_json_arguments, machine_info, parse_bench_arguments, write_json
 from terrain_estimation.cli import cli_main
-from terrain_estimation.outputs import check_output_path
 
 __all__ = [
     "KEEP_MARKER",
@@ -693,9 +692,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=None, help="seed of the simulated bags (default: configured)")
     parser.add_argument("--keep", metavar="DIR", help="make and keep the bags and outputs here (bags reused)")
     add_json_arguments(parser)
-    args = parser.parse_args(argv)
-    if args.json:  # refused before the run, not after it
-        check_output_path(args.json, overwrite=args.overwrite, kind="file")
+    args = parse_bench_arguments(parser, argv)
     short_s, long_s = (10.0, 60.0) if args.quick else (args.short_s, args.long_s)
     vehicles = args.vehicles or (["quarter_car"] if args.quick else list(VEHICLES))
     trace_s = args.trace_s

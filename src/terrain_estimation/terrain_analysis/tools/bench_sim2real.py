@@ -31,9 +31,14 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from terrain_analysis.tools.bench_common import BenchConfig, add_json_arguments, machine_info, write_json
+from terrain_analysis.tools.bench_common import (
+    BenchConfig,
+    add_json_arguments,
+    machine_info,
+    parse_bench_arguments,
+    write_json,
+)
 from terrain_estimation.cli import cli_main
-from terrain_estimation.outputs import check_output_path
 
 __all__ = [
     "SCALING_SECONDS",
@@ -333,9 +338,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--keep", metavar="DIR", help="keep the bags and each diagnosis's JSON here (reused)")
     parser.add_argument("--no-warm", action="store_true", help="no untimed warm-up diagnosis per process")
     add_json_arguments(parser)
-    args = parser.parse_args(argv)
-    if args.json:  # refused before the run, not after it
-        check_output_path(args.json, overwrite=args.overwrite, kind="file")
+    args = parse_bench_arguments(parser, argv)
     cfg = BenchConfig.quick() if args.quick else BenchConfig()
     vehicles = args.vehicles if not args.quick else (args.vehicles or ["quarter_car"])
     rows = bench_diagnosis_scaling(

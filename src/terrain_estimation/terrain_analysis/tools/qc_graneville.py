@@ -25,10 +25,12 @@ from terrain_analysis.tools.qc_runs import (
     PROFILE_RATES,
     Counts,
     Results,
+    Trace,
     _ms,
     _settle_stats,
     rmse,
     run_seeds,
+    writes_runs,
 )
 from vehicle_sim.terrain.profiles import RoadProfile, iso8608_profile
 
@@ -40,10 +42,8 @@ FloatArray = NDArray[np.float64]
 # -- case 1 -------------------------------------------------------------------
 
 
-def case1(rep: Report, res: Results, counts: Counts) -> None:
-    runs = res.get("case1", [])
-    if not runs:
-        return
+@writes_runs("case1")
+def case1(rep: Report, runs: list[dict[str, Trace]], counts: Counts) -> None:
     n = len(runs)
     T = counts.case1_duration
     lines = [
@@ -221,11 +221,9 @@ def _call_pcrlb(fn: Callable[..., Any], n_runs: int, duration: float) -> tuple[F
     return t, rel, how
 
 
-def case6(rep: Report, res: Results, counts: Counts) -> None:
+@writes_runs("case1")
+def case6(rep: Report, runs: list[dict[str, Trace]], counts: Counts) -> None:
     lines = ["## Case 6 — Posterior Cramér–Rao bound for k_s (case 1 conditions)", ""]
-    runs = res.get("case1", [])
-    if not runs:
-        return
     try:
         import importlib
 
@@ -291,10 +289,8 @@ def case6(rep: Report, res: Results, counts: Counts) -> None:
 # -- case 7 (noise forms; case 1 part) ---------------------------------------------------
 
 
-def case7(rep: Report, res: Results, counts: Counts) -> None:
-    runs = res.get("case1", [])
-    if not runs:
-        return
+@writes_runs("case1")
+def case7(rep: Report, runs: list[dict[str, Trace]], counts: Counts) -> None:
     T = counts.case1_duration
     lines = [
         "## Case 7 — The two k_tot noise forms (MODELS.md A.4)",

@@ -24,6 +24,7 @@ from terrain_analysis.tools.qc_runs import (
     Trace,
     _settle_stats,
     mean_abs,
+    writes_runs,
 )
 
 __all__ = ["case3", "case5"]
@@ -183,10 +184,8 @@ def case3(rep: Report, res: Results, counts: Counts) -> None:
 # -- case 5 (LRV) ----------------------------------------------------------------------
 
 
-def case5(rep: Report, res: Results, counts: Counts) -> None:
-    runs = res.get("lrv", [])
-    if not runs:
-        return
+@writes_runs("lrv")
+def case5(rep: Report, runs: list[dict[str, Trace]], counts: Counts) -> None:
     T = counts.lrv_duration
     lines = [
         "## Case 5 — LRV on regolith, ISO G, 2 m/s (paper §5.3, Fig. 11)",

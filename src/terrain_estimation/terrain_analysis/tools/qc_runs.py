@@ -19,14 +19,16 @@ Meadow-c, 5 = LRV, 6 / 7 = the no-change rides of the quarter car / LRV
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Literal, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
+from terrain_analysis.reporting import Report
 from terrain_analysis.reporting import format_number as _fmt
 from terrain_analysis.reporting import in_window as _window
 from terrain_analysis.reporting import summary_stats as _stats
@@ -452,6 +454,24 @@ def build_change_plan(counts: Counts) -> list[RunSpec]:
 
 Results = dict[str, list[dict[str, Trace]]]
 """Traces per cell key (``RunSpec.key``), one dict (variant label -> trace) per run, ordered by run."""
+
+SectionWriter = Callable[[Report, Results, Counts], None]
+"""A case's writer of the page: its section of ``rep`` from the results (nothing where it has no runs)."""
+
+
+def writes_runs(key: str) -> Callable[[Callable[[Report, list[dict[str, Trace]], Counts], None]], SectionWriter]:
+    """A case's section writer given the runs of the cell ``key``; it writes nothing where that cell has none."""
+
+    def wrap(write: Callable[[Report, list[dict[str, Trace]], Counts], None]) -> SectionWriter:
+        @functools.wraps(write)
+        def writer(rep: Report, res: Results, counts: Counts) -> None:
+            runs = res.get(key, [])
+            if runs:
+                write(rep, runs, counts)
+
+        return writer
+
+    return wrap
 
 
 V = TypeVar("V")

@@ -56,19 +56,32 @@ __all__ = [
 
 ROAD_CHOICES = tuple(ISO8608_CLASSES) + ("meadow_c", "flat")
 
+
+def _accelerometer_specs(sensor: str) -> tuple[ParamSpec, ParamSpec]:
+    """Bias and scale-factor error of the ``sensor`` ("body" or "wheel") vertical accelerometer."""
+    return (
+        ParamSpec(
+            f"effects.accel_bias_{sensor}",
+            0.0,
+            f"[m/s^2] constant bias of the {sensor} accelerometer",
+            -50.0,
+            50.0,
+            read_only=True,
+        ),
+        ParamSpec(
+            f"effects.accel_scale_{sensor}",
+            0.0,
+            f"[-] {sensor} accelerometer scale-factor error s: reading = (1 + s) x true",
+            -0.99,
+            0.99,
+            read_only=True,
+        ),
+    )
+
+
 # Unmodelled effects (CONTRACT.md "Nominal model and effects"; QuarterCarEffects): all off by default.
 EFFECT_SPECS_COMMON: tuple[ParamSpec, ...] = (
-    ParamSpec(
-        "effects.accel_bias_body", 0.0, "[m/s^2] constant bias of the body accelerometer", -50.0, 50.0, read_only=True
-    ),
-    ParamSpec(
-        "effects.accel_scale_body",
-        0.0,
-        "[-] body accelerometer scale-factor error s: reading = (1 + s) x true",
-        -0.99,
-        0.99,
-        read_only=True,
-    ),
+    *_accelerometer_specs("body"),
     ParamSpec(
         "effects.sensor_delay",
         0.0,
@@ -127,17 +140,7 @@ EFFECT_SPECS_COMMON: tuple[ParamSpec, ...] = (
 
 # Effects of the 2-DOF quarter car only (the LRV has no wheel accelerometer, suspension or tire of its own).
 EFFECT_SPECS_TWO_DOF: tuple[ParamSpec, ...] = (
-    ParamSpec(
-        "effects.accel_bias_wheel", 0.0, "[m/s^2] constant bias of the wheel accelerometer", -50.0, 50.0, read_only=True
-    ),
-    ParamSpec(
-        "effects.accel_scale_wheel",
-        0.0,
-        "[-] wheel accelerometer scale-factor error s: reading = (1 + s) x true",
-        -0.99,
-        0.99,
-        read_only=True,
-    ),
+    *_accelerometer_specs("wheel"),
     ParamSpec(
         "effects.sensor_delay_wheel",
         0.0,
