@@ -53,14 +53,7 @@ def _runs(vehicle: str, case: Case) -> bool:
 
 
 # Known and not yet fixed: strict, so that the fix shows.
-KNOWN: dict[tuple[str, str], str] = {
-    ("rover", "gap_1h"): (
-        "a false gap since the rover replay sinks its wheels (13f2a52): on the shipped bag's second half (a segment "
-        "that starts mid-drive, its ruts unknown to the replay) terrain-sim2real reads 'explained by soil_change' "
-        "(chi2 -1.2 %, held-out likelihood ratio 47; vz_front_middle bias 6.6e-6 m/s against a 5.6e-6 threshold) "
-        "and exits 1 instead of 0: the sinkage's initial state needs to be a fitted nuisance"
-    ),
-}
+KNOWN: dict[tuple[str, str], str] = {}
 
 
 CASES = [

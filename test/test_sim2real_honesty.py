@@ -30,7 +30,7 @@ from test_sim2real_attribution import SIGMA, ToyModel, _signal
 
 from terrain_analysis.sim2real.attribution import AttributionSettings, attribute
 from terrain_analysis.sim2real.model import Candidate, FitParameter
-from terrain_analysis.sim2real.tolerance import ToleratedModel, tolerances, with_tolerances
+from terrain_analysis.sim2real.tolerance import ToleratedModel, nuisance_names, tolerances, with_tolerances
 
 REPO = Path(__file__).resolve().parents[1]
 FAST = AttributionSettings(bootstrap=100)
@@ -137,7 +137,9 @@ def test_a_mismatch_beyond_tolerance_is_still_found() -> None:
 def test_vehicle_configs_state_the_tolerances() -> None:
     values = tolerances("skid_steer", REPO / "config" / "skid_steer.yaml")
     assert values["tolerance.rolling_resistance"] == pytest.approx(0.02)
-    assert tolerances("rover") == {}
+    # The rover's sinkage: its soil's k_c, k_phi, n known to tens of per cent, the replay's sinkage_scale fitted.
+    assert tolerances("rover", REPO / "config" / "rover.yaml") == {"tolerance.sinkage": pytest.approx(0.2)}
+    assert nuisance_names(tolerances("rover")) == ("sinkage_scale",)
 
 
 def test_skid_steer_rolling_resistance_within_tolerance_is_not_a_gap() -> None:

@@ -24,6 +24,8 @@ from terrain_analysis.sim2real.rover import (
     build_model_from_series,
     series_from_run,
 )
+from terrain_analysis.sim2real.rover_bag import WHEELS
+from terrain_analysis.sim2real.rover_sinkage import START_WINDOW
 from terrain_analysis.sim2real.where import Sim2RealError
 from vehicle_sim.effects import effects_for
 from vehicle_sim.plants.rover import RoverScenario, simulate_rover
@@ -165,9 +167,14 @@ def test_sinkage_scale_is_a_nuisance_of_the_replay(nominal: tuple[Any, RoverRepl
     """The factor on the nominal soil's sinkage (uncertain soil moduli): 1 is the nominal replay; 0 (wheels on the
     surface, the replay before issue 21's plant) leaves the sinking rates in the ż0^R differences."""
     from terrain_analysis.sim2real.rover import NUISANCE
+    from terrain_analysis.sim2real.rover_sinkage import START_OFFSET
 
     run, model = nominal
-    assert model.nuisance == []  # not fitted unless asked for (a nominal tolerance)
+    # Not fitted unless asked for (a nominal tolerance); the sinkage's unknown start always is.
+    assert [p.name for p in model.nuisance] == list(START_OFFSET)
+    assert [p.name for p in RoverReplay(model.series, model.params, model.soil, nuisance=("sinkage_scale",)).nuisance][
+        -1
+    ] == "sinkage_scale"
     nominal_rms = _rms(model, {})
     pred = model.predict({}, {"sinkage_scale": 1.0})
     for ch in model.channels:
@@ -180,6 +187,36 @@ def test_sinkage_scale_is_a_nuisance_of_the_replay(nominal: tuple[Any, RoverRepl
     assert NUISANCE["sinkage_scale"].off == 1.0
     with pytest.raises(ValueError, match="sinkage_scal"):
         RoverReplay(model.series, model.params, model.soil, nuisance=("sinkage_scal",))
+
+
+def test_a_segment_starting_mid_drive_starts_in_its_rut() -> None:
+    """The shipped bag's second half (a bag cut at a time gap): the replay of the whole bag has the front wheel
+    0.07 mm below its z* at the cut (a rut of the heavier load before), climbing out over ≈ 4 s; started at z*,
+    the replay of the half leaves 4e-6 m/s of it in vz_front_middle after the warm-up (0.5 σ, read as a soil
+    change). Started in that rut (the start-offset nuisance, mm), it repeats the whole bag's replay."""
+    full = build_model(REPO / "bags" / "rover_terrain_2")
+    s = full.series
+    cut = s.t.size // 2
+    half_series = dataclasses.replace(s, **{f.name: getattr(s, f.name)[cut:] for f in dataclasses.fields(s)})
+    half = build_model_from_series(half_series)
+    whole = full.predict({}, {})
+    depth_full = full._last_state["sinkage"][cut:]
+    zero = half.predict({}, {})
+    # The offset is the rut at the end of the start window, where the replay's lag starts.
+    first = int(np.searchsorted(half_series.t, half_series.t[0] + START_WINDOW))
+    rut = depth_full[first] - half._last_state["sinkage"][first]
+    assert rut[2] == pytest.approx(6e-5, abs=2e-5)  # the front wheel (WHEELS: rear, middle, front)
+    assert np.all(np.abs(rut[:2]) < 1e-5)
+    offsets = {f"sinkage_start_{w}": 1e3 * max(float(d), 0.0) for w, d in zip(WHEELS, rut, strict=True)}
+    started = half.predict({}, offsets)
+    late = half.times["vz_front_middle"] >= half.times["vz_front_middle"][0] + half.warmup
+    reference = whole["vz_front_middle"][cut:][late]
+    before = float(np.mean(zero["vz_front_middle"][late] - reference))
+    after = float(np.mean(started["vz_front_middle"][late] - reference))
+    assert abs(before) > 3e-6
+    assert abs(after) < 0.25 * abs(before)  # the rut's rate at the cut is not known: 0.1 σ of the channel left
+    sink = half._last_state["sinkage"]
+    assert np.max(np.abs(sink[late] - depth_full[late])) < 0.2 * np.max(np.abs(rut))
 
 
 def test_soil_change_replay_closes_the_gap_except_at_the_change(soil_change_run: tuple[Any, RoverReplay]) -> None:

@@ -324,7 +324,7 @@ def _diagnose(
     else:
         extra: dict[str, Any] = {}
         names = nuisance_names(tolerance_values)
-        if vehicle == "skid_steer" and names:
+        if vehicle in ("skid_steer", "rover") and names:
             extra["nuisance"] = names  # the replay fits them; their priors come from the tolerances
         model = build_model(bag, vehicle, config=config, namespace=namespace, progress=progress, **extra)
         model = with_tolerances(model, tolerance_values)

@@ -25,8 +25,10 @@ What the replay assumes
       same soil's steady sinkage z*(W, i) = r_w (1 − cos θ0(W, i)) followed by
       a plastic lag (loading within ``plant.sinkage_loading_time``, unloading
       over a contact length of travel; :mod:`~terrain_analysis.sim2real.rover_sinkage`).
-      Its factor on z* is a nuisance parameter the diagnosis can fit
-      (:data:`NUISANCE` ``sinkage_scale``), off by default.
+      Its factor on z* is a nuisance parameter (:data:`NUISANCE`
+      ``sinkage_scale``) the diagnosis fits with the config's tolerance
+      ``tolerance.sinkage``; each wheel's start below z* (a rut of a segment
+      that starts mid-drive) is always fitted (``sinkage_start_*``).
     * Two-axis load cells (``estimator.load_cell_axes: 2``): F_L and F_⊥ per
       wheel (single-axis cells leave W, DP and γ underdetermined per wheel;
       a :class:`~terrain_analysis.sim2real.where.Sim2RealError` says so).
@@ -213,7 +215,7 @@ from terrain_analysis.sim2real.rover_bag import WHEELS, RoverSeries, read_rover_
 from terrain_analysis.sim2real.rover_kinematics import RoverKinematics
 from terrain_analysis.sim2real.rover_location import ChangeLocation
 from terrain_analysis.sim2real.rover_signal import _savgol, _white_bound
-from terrain_analysis.sim2real.rover_sinkage import sinkage_motion
+from terrain_analysis.sim2real.rover_sinkage import START_OFFSET, sinkage_motion, start_offsets
 from terrain_analysis.sim2real.rover_soil import _SoilModel, _SoilVariant, _solve_wheels
 from terrain_analysis.sim2real.where import Sim2RealError
 from terrain_estimation.models.rover import RoverParams
@@ -257,7 +259,8 @@ MODEL_FLOORS: Mapping[str, float] = {
 }
 
 
-#: Nuisance parameters the replay can fit in every model (``nuisance=`` of :class:`RoverReplay`), none by default:
+#: Nuisance parameters the replay can fit in every model (``nuisance=`` of :class:`RoverReplay`), besides the
+#: sinkage's start offsets it always fits (:data:`~terrain_analysis.sim2real.rover_sinkage.START_OFFSET`):
 #: ``sinkage_scale``, the factor on the nominal soil's steady sinkage z* (relation 3; a soil's k_c, k_φ and n are
 #: uncertain by tens of per cent, and z* goes as (k_c/b + k_φ)^(−2/(2n+1))). Its prior, if any, is the nominal
 #: tolerance's (:mod:`terrain_analysis.sim2real.tolerance`).
@@ -305,6 +308,7 @@ class RoverReplay(ChangeLocation, RoverKinematics):
         self.sinkage = bool(sinkage)
         self.sinkage_loading_time = float(sinkage_loading_time)
         self._sinkage_scale = 1.0
+        self._sinkage_start: FloatArray | None = None
         self._t = series.t
         self._prepare()
         self._inside = self._inside_domain(self.noise.get("forward_speed", 0.0), source)
@@ -317,7 +321,9 @@ class RoverReplay(ChangeLocation, RoverKinematics):
         self._build_channels(monte_carlo, seed)
         catalogue = candidates_from_catalogue("rover", exclude=("vertical_velocity",))
         self.candidates = self._adapt_candidates(catalogue)
-        self.nuisance: list[FitParameter] = [NUISANCE[name] for name in nuisance]
+        #: Fitted in every model: the sinkage's unknown start (with it) and the asked-for :data:`NUISANCE`.
+        start = list(START_OFFSET.values()) if self.sinkage else []
+        self.nuisance: list[FitParameter] = start + [NUISANCE[name] for name in nuisance]
         #: Effects this replay cannot identify from any bag, with the measurement that would (issue 22, item 4).
         self.unidentifiable: dict[str, str] = {
             "vertical_velocity": "a measurement of the terrain under the wheels (a surveyed or lidar profile of the "
@@ -554,6 +560,7 @@ class RoverReplay(ChangeLocation, RoverKinematics):
             loading_time=self.sinkage_loading_time,
             radius=self.params.wheel_radius,
             grouser_height=grouser,
+            start_offset=self._sinkage_start,
         )
 
     def _compute(
@@ -680,10 +687,11 @@ class RoverReplay(ChangeLocation, RoverKinematics):
     ) -> dict[str, FloatArray]:
         """Predicted channels with ``effects`` added (``{}``: nominal) and the :data:`NUISANCE` values ``nuisance``."""
         self._sinkage_scale = float(nuisance.get("sinkage_scale", 1.0))
+        self._sinkage_start = start_offsets(nuisance)
         try:
             _, pred = self._compute(effects)
         finally:
-            self._sinkage_scale = 1.0
+            self._sinkage_scale, self._sinkage_start = 1.0, None
         return pred
 
 

@@ -28,9 +28,25 @@ heavier load before it would keep them deeper), and its first samples may not be
 the wheels' state (streams that start late, a delayed stream's first values, the
 edge of a smoothing window). The sinkage is held at rest over the first
 :data:`START_WINDOW` (inside the replay's 3 s warm-up) at z* of the window's end,
-and the lag runs from there. A start too deep would decay at the slow unloading
-rate over many seconds: started at z* of the first sample, the front wheel of a
-rolling-terrain run (its first load 1 N off) had ṡ off by 5e-6 m/s on average
+and the lag runs from there. To it adds the rut the wheel started in, d_j ≥ 0
+below that depth: a segment that starts mid-drive (a bag cut at a time gap)
+finds each wheel where its earlier loads left it, deeper than z* if they were
+heavier, and the wheel climbs out at the unloading rate, over about a contact
+length of travel (a few seconds at a few cm/s); the rut decays by the same lag
+towards 0, a state of its own so that (s, ṡ) are smooth and nearly linear in d_j
+(the offset as the lag's own start had a kink at d_j = 0, its switch between the
+loading and the unloading rate, where the fit stopped at 0).
+The bag cannot say how deep, so the replay fits d_j as a nuisance
+(:data:`START_OFFSET`, in mm, bounded at 0 with a Gaussian prior of σ
+:data:`START_OFFSET_PRIOR`: a half-normal); a shallower start would be pressed to
+z* within τ, inside the warm-up, so d_j is not negative. On the shipped
+rover_terrain_2's second half the front wheel started 0.07 mm below the replay's
+z* (the replay of the whole bag at that instant), which decays over ≈ 4 s and
+biased ``vz_front_middle`` by 4e-6 m/s after the warm-up, read as a soil change.
+
+A start at z* too deep would decay at the slow unloading rate over many seconds:
+started at z* of the first sample, the front wheel of a rolling-terrain run (its
+first load 1 N off) had ṡ off by 5e-6 m/s on average
 over 20 s (0.2 σ of the ż0^R channels), and a run with delayed sensors (zero loads
 over the first 60 ms) sank 1.5 mm too deep; started at the window's end, the
 replay of the plant's own z* repeats its sinkage to 1e-12 m after the warm-up.
@@ -39,17 +55,37 @@ replay of the plant's own z* repeats its sinkage to 1e-12 m after the warm-up.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 from numpy.typing import NDArray
 
+from terrain_analysis.sim2real.model import FitParameter
+from terrain_analysis.sim2real.rover_bag import WHEELS
+
 FloatArray = NDArray[np.float64]
 
-__all__ = ["sinkage_motion"]
+__all__ = ["START_OFFSET", "START_OFFSET_PRIOR", "sinkage_motion", "start_offsets"]
 
 _MIN_CONTACT = 1.0e-3  # m, shortest contact length of the unloading rate
 START_WINDOW = 1.0
 """s, the start of the bag over which the sinkage is held at z* of its end (module docstring)."""
+START_OFFSET_PRIOR = 0.5
+"""mm, σ of the (half-normal) prior of a wheel's start rut: that of a load ≈ 2.5 N heavier (z* changes by
+≈ 0.2 mm per N on [RB] Table II's soil); the fit is bounded at 6 σ."""
+
+#: The replay's nuisance parameters of the sinkage's unknown start, one per wheel (module docstring), in mm.
+START_OFFSET: dict[str, FitParameter] = {
+    f"sinkage_start_{w}": FitParameter(
+        f"sinkage_start_{w}", "mm", 0.0, (0.0, 6.0 * START_OFFSET_PRIOR), 0.1, prior_std=START_OFFSET_PRIOR
+    )
+    for w in WHEELS
+}
+
+
+def start_offsets(nuisance: Mapping[str, float]) -> FloatArray:
+    """The wheels' start ruts d_j (m), in :data:`WHEELS` order, of the nuisance values (absent: 0)."""
+    return np.array([1e-3 * float(nuisance.get(f"sinkage_start_{w}", 0.0)) for w in WHEELS])
 
 
 def sinkage_motion(
@@ -60,12 +96,14 @@ def sinkage_motion(
     loading_time: float,
     radius: float,
     grouser_height: float = 0.0,
+    start_offset: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """(s, ṡ) (m, m/s), (N, W) each, of wheels whose steady depth is ``target`` (N, W) at the times ``t`` (N,).
 
     ``speed``: each wheel centre's speed along the terrain (m/s), (N, W); ``radius``: the
     wheel's radius r_w (m); ``grouser_height``: h_g (m), the contact cylinder being r_w + h_g
-    (module docstring).
+    (module docstring); ``start_offset``: each wheel's rut d_j below z* at the end of the start
+    window (m), (W,) (default none).
     """
     n, wheels = target.shape
     s = np.zeros((n, wheels))
@@ -80,27 +118,34 @@ def sinkage_motion(
         z = target[:, j].tolist()
         v = np.abs(speed[:, j]).tolist()
         depth, velocity = z[first], 0.0
-        out_s, out_rate = [depth] * (first + 1), [velocity] * (first + 1)
+        # The rut below z* the wheel started in, climbing out at the unloading rate.
+        rut, rut_rate = (0.0 if start_offset is None else float(start_offset[j])), 0.0
+        out_s, out_rate = [depth + rut] * (first + 1), [velocity] * (first + 1)
         for k in range(first, n - 1):
             dt = steps[k]
             goal = z[k]
-            if goal >= depth:
-                omega = loading
-            else:
-                cos0 = 1.0 - min((depth + grouser_height) / r_e, 1.0)
+            unloading = 0.0
+            if goal < depth or rut > 0.0:
+                cos0 = 1.0 - min((max(depth, goal) + rut + grouser_height) / r_e, 1.0)
                 contact = max(r_e * math.sqrt(max(1.0 - cos0 * cos0, 0.0)), _MIN_CONTACT)
-                omega = min(v[k] / contact, loading)
-            if omega > 0.0:
-                # e = s − z* = (A + B τ) e^(−ωτ), A = e0, B = ė0 + ω e0.
-                a = depth - goal
-                b = velocity + omega * a
-                decay = math.exp(-omega * dt)
-                position = a + b * dt
-                depth, velocity = goal + position * decay, (b - omega * position) * decay
-            else:
-                depth += velocity * dt
-            out_s.append(depth)
-            out_rate.append(velocity)
+                unloading = min(v[k] / contact, loading)
+            depth, velocity = _lag(depth, velocity, goal, loading if goal >= depth else unloading, dt)
+            if rut > 0.0:
+                rut, rut_rate = _lag(rut, rut_rate, 0.0, unloading, dt)
+            out_s.append(depth + rut)
+            out_rate.append(velocity + rut_rate)
         s[:, j] = out_s
         rate[:, j] = out_rate
     return s, rate
+
+
+def _lag(depth: float, velocity: float, goal: float, omega: float, dt: float) -> tuple[float, float]:
+    """(s, ṡ) after ``dt`` of the critically damped lag at ``omega`` towards ``goal`` (held over ``dt``)."""
+    if not omega > 0.0:
+        return depth + velocity * dt, velocity
+    # e = s − z* = (A + B τ) e^(−ωτ), A = e0, B = ė0 + ω e0.
+    a = depth - goal
+    b = velocity + omega * a
+    decay = math.exp(-omega * dt)
+    position = a + b * dt
+    return goal + position * decay, (b - omega * position) * decay

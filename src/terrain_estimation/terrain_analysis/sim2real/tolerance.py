@@ -84,6 +84,7 @@ TARGETS: Mapping[str, tuple[str, str]] = {
     "tolerance.cornering_stiffness": ("within", "cornering_stiffness_change.cornering_stiffness_change"),
     "tolerance.friction": ("nuisance", "friction_scale"),
     "tolerance.yaw_inertia": ("nuisance", "yaw_inertia_scale"),
+    "tolerance.sinkage": ("nuisance", "sinkage_scale"),
 }
 
 _MASS = ParamSpec(
@@ -155,7 +156,18 @@ SPECS: Mapping[str, tuple[ParamSpec, ...]] = {
             1.0,
         ),
     ),
-    "rover": (),
+    "rover": (
+        ParamSpec(
+            "tolerance.sinkage",
+            0.2,
+            "[-] relative tolerance (1 sigma) of the wheels' steady sinkage z* (the factor sinkage_scale on the "
+            "sinkage of the simulator's soil.*): the k_c, k_phi and n of a real soil are known to tens of per cent "
+            "(z* goes as (k_c/b + k_phi)^(-2/(2n+1))); a mismatch within it is fitted as a nuisance, not a gap; "
+            "0: known exactly",
+            0.0,
+            1.0,
+        ),
+    ),
 }
 
 
