@@ -134,14 +134,30 @@ def test_repeat_pass_parameters_reach_the_estimator() -> None:
 
     values = {s.name: s.default for s in PARAMETERS}
     cfg = estimator_config(values)
-    assert cfg.contact_angle_bias.from_repeat_pass is True
-    assert cfg.contact_angle_bias.memory_steps == 5.0
+    bias = cfg.contact_angle_bias
+    assert bias.enabled and not bias.path_error and bias.sigma == 0.01
+    assert bias.from_repeat_pass is True
+    assert bias.memory_steps == 5.0
+    assert bias.sinkage_relative_error == 0.0
     cfg = estimator_config(
         {
             **values,
             "filter.contact_angle_bias_from_repeat_pass": False,
             "filter.contact_angle_bias_memory": 25.0,
+            "filter.contact_angle_path_error": True,
+            "filter.contact_angle_sinkage_error": 0.5,
         }
     )
     assert cfg.contact_angle_bias.from_repeat_pass is False
     assert cfg.contact_angle_bias.memory_steps == 25.0
+    assert cfg.contact_angle_bias.path_error is True
+    assert cfg.contact_angle_bias.sinkage_relative_error == 0.5
+    off = estimator_config(
+        {
+            **values,
+            "filter.contact_angle_bias": 0.0,
+            "filter.contact_angle_path_error": False,
+            "filter.contact_angle_sinkage_error": 0.0,
+        }
+    )
+    assert off.contact_angle_bias.enabled is False

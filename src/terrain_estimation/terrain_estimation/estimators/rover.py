@@ -32,8 +32,10 @@ DP(W, i), τ_R(W, i) models of ``terrain_msgs/TerrainResponseModel`` (C.7).
   slip R and Estimator 2/3's Q of W and DP (rotated with γ, per wheel) matched to the innovations
   (``noise_matching``), the coloured contact-angle error and eq. 49's
   neglected wheel coupling considered in the published variances
-  (``contact_angle_bias``), τ_R published for the window just observed plus
-  its swing inside the window, Estimator 3's split of F_⊥12 sized by the
+  (``contact_angle_bias``: a prior σ_b raised to the repeat-pass measure; as an
+  option the parabola's error on the path the wheels traced, with
+  ``counters.beyond_curvature_validity`` where it bends ≥ 1/l_w), τ_R
+  published for the window just observed plus its swing inside the window, Estimator 3's split of F_⊥12 sized by the
   slips (``split_traction_slope``), and
   ``settled`` False for the first ``settle_steps`` updates after a start.
   Each estimate carries ``consistency_nis`` for ``/diagnostics``: the slips,
@@ -170,6 +172,7 @@ from terrain_estimation.estimators.rover_outputs import (
     TerrainResponseCounters,
     WheelTerrainEstimate,
 )
+from terrain_estimation.estimators.rover_path_error import PathQuadratureError, sinkage_tilt_variance
 from terrain_estimation.estimators.rover_response import (
     TerrainResponseAccumulator,
     TerrainResponseConfig,
@@ -314,6 +317,9 @@ class RoverTerrainEstimator(SensorWindows):
         self._split_var = np.zeros(3)  # Estimator 3's split error of F̌_⊥ this step (rover_noise.split_covariance)
         self._next_swing = np.zeros(3)
         self._repeat_pass = RepeatPassError(self.config.contact_angle_bias.memory_steps)
+        self._path_error = PathQuadratureError(
+            self.config.contact_angle_bias.memory_steps, self.config.rover.wheel_radius
+        )
         self._next_tau_step_var = np.zeros(3)
         self._last: RoverEstimate | None = None
         self._outbox: list[RoverEstimate] = []
@@ -467,6 +473,7 @@ class RoverTerrainEstimator(SensorWindows):
         self._scales1 = np.ones(2)
         self._scales2 = np.ones(_WHEEL_FORCE_BLOCKS)
         self._tau_step_var = np.zeros(3)
+        self._path_error.reset()  # traced by the estimates that diverged
         if failure is None:
             self._failures = 0
         self._vertical = vertical if not check1.diverged and vertical is not None else (0.0, 0.0)
@@ -513,6 +520,7 @@ class RoverTerrainEstimator(SensorWindows):
         self._sinkage.reset()
         self._balance.reset()
         self._repeat_pass.reset()
+        self._path_error.reset()
         self._failures = 0
         self._since_start = 0
         self._scales1 = np.ones(2)
@@ -727,11 +735,27 @@ class RoverTerrainEstimator(SensorWindows):
         x2 = np.asarray(self._wheel_force.x, dtype=float)
         v2 = np.clip(np.diag(np.asarray(self._wheel_force.P, dtype=float)), 0.0, None)
         bias = self.config.contact_angle_bias
+        pitch, bogie = float(x1[_G.PITCH]), float(x1[_G.BOGIE])
+        model_var = 0.0
+        if not initialised and bias.enabled and (bias.path_error or bias.sinkage_relative_error > 0.0):
+            # The parabola's error on the path the wheels traced, and the sinkage model's tilt (rover_noise);
+            # a (re)start's estimate carries its start covariance instead, and the traced profile starts again.
+            centres = wheel_centres(self.config.rover, configuration(pitch, bogie))
+            weights = path_tangent_angles(self.config.rover, pitch, bogie)[1]
+            if bias.path_error:
+                if is_settled(self._since_start, self.config.settle_steps):
+                    # Settled estimates only: a start's transient is no slope profile.
+                    self._path_error.update(self._distance, x2[0:3], v2[0:3], centres[:, 0], weights)
+                    self._c["beyond_curvature_validity"] += int(self._path_error.beyond_validity)
+                model_var += self._path_error.variance
+            sink = self._sinkage.sinkage if self.config.sinkage.enabled else None
+            if sink is not None:
+                model_var += sinkage_tilt_variance(centres[:, 0], sink, weights, bias.sinkage_relative_error)
         if not initialised:
-            centres = wheel_centres(self.config.rover, configuration(float(x1[_G.PITCH]), float(x1[_G.BOGIE])))
+            centres = wheel_centres(self.config.rover, configuration(pitch, bogie))
             self._repeat_pass.update(self._distance, x2[0:3], v2[0:3], np.diff(centres[:, 0]))
         gamma_var, load_var, pull_var = considered_variances(
-            v2[0:3], x2[3:6], v2[3:6], x2[6:9], v2[6:9], bias, self._repeat_pass.variance
+            v2[0:3], x2[3:6], v2[3:6], x2[6:9], v2[6:9], bias, self._repeat_pass.variance, model_var
         )
         if self.config.load_cell_axes == 1:
             # The split error of F̌_⊥ is as slow as the terrain: the filter averages it as if white; considered.

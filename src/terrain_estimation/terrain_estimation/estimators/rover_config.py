@@ -107,7 +107,8 @@ class RoverEstimatorConfig:
             Q of γ, W, DP), :mod:`~terrain_estimation.estimators.rover_noise`.
         contact_angle_bias: γ̌'s coloured error, considered in the published
             variances of γ, W and DP: a prior σ_b raised to the error the
-            wheels' repeat passes show
+            wheels' repeat passes show; optionally the parabola's error on the
+            path the wheels traced and the sinkage model's tilt
             (:class:`~terrain_estimation.estimators.rover_noise.ContactAngleBias`).
         split_traction_slope: Estimator 3 (terrain-frame split): k, the slope
             of DP/W against slip, which with the bogie wheels' slip difference

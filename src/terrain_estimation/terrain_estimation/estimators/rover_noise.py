@@ -116,27 +116,37 @@ error of 0.009 rad, DP correspondingly over-confident: 48 % of errors within
 rotated by γ − ε: with a bias state and tight W, DP random walks the cells
 pulled γ to errors of 0.03 rad), so the error is *considered* (Schmidt):
 the estimate follows γ̌ = γ + b, W and DP inherit ``DP b`` and ``−W b``, and
-the published variances gain ``σ_b²``, ``DP² σ_b²``, ``W² σ_b²``. σ_b = 0.01
-rad a priori: ≈ 0.007 rad for the path beyond the parabola at κ' ≈ 1/l_w²
-and ≈ 0.007 rad for 5 mm of differential sinkage over 0.35 m, in quadrature.
-With the estimator's sinkage model (:mod:`~terrain_estimation.models.rover_sinkage`)
-the second share is what that model leaves: its nominal soil (on a soil 2–3×
-stiffer or softer the sinkage differences change by 35–50 %), the sinking
-rate lagging one step, and a rigid ground the model takes for soil (5 mm,
-the full share); σ_b was kept at 0.01 rad, not re-fitted.
+the published variances gain ``σ_b²``, ``DP² σ_b²``, ``W² σ_b²``.
 
-That prior holds where the path is gentle; at a step the error is several
-times larger — the wheel centre turns round the edge within a wheel radius,
-a change of slope that no polynomial through three centres 0.35 m apart
-follows (γ's error 0.017–0.037 rad RMS on the step terrains 4–6), and the
-fixed σ_b left W, DP and γ over-confident there (e²/σ² of DP 2.2–2.7 on the
-medium step, 8.6–10.6 on the sharp one). The error is therefore also
-*measured* (:class:`RepeatPassError`): the wheels run in one track, so the
-middle wheel meets the ground the front wheel met 0.35 m earlier, with the
-same true contact angle; half the squared difference of their estimates,
-less their filter variances, is the error's variance at that place. σ_b² is
-the larger of the prior and that measure, averaged over ``memory_steps``
-(issue 21, item 2: the contact-angle error modelled rather than hidden).
+By default σ_b is ``sigma`` (0.01 rad, sized a priori for the path beyond
+the parabola and ≈ 5 mm of differential sinkage over 0.35 m) raised to the
+repeat-pass measure (:class:`RepeatPassError`: the middle wheel meets the
+ground the front wheel met 0.35 m earlier; half the squared difference of
+their estimates, less their variances, a lower bound). It leaves the straight
+slopes and the wide step of terrains 2–4 cautious (e²/σ² of DP 0.13–0.32)
+and the sharp step of terrain 6 over-confident (2.2).
+
+An option follows what the estimator itself sees (issue 21): ż0^R takes the
+parabola's weighted tangent, which for equal spacing is the path's *mean*
+slope over the wheelbase, against the true slopes at the nodes weighted
+(1, 4, 1)/6, so the common error of the three γ̌ is Simpson's rule's error on
+the slope profile over the wheelbase — zero for a path quartic over it, RMS
+Δ/6 for a kink Δ passing under the rover. The wheels run in one track and
+have traced that profile with their own estimates:
+:class:`~.rover_path_error.PathQuadratureError`
+(``path_error``) evaluates the error on it (its curvature ≥ 1/l_w flags the
+span as beyond the method's validity, [RB] V-B, with at least a kink's
+variance); the sinkage model's share is its tilt of the fitted path times the
+relative error of its nominal soil
+(:func:`~.rover_path_error.sinkage_tilt_variance`,
+``sinkage_relative_error``, e.g. 0.35: a soil 2× stiffer moves the sinkages by
+−35 %), with ``sigma`` a floor in quadrature. On the reproduction's runs (4
+seeds per terrain; path error on, sinkage 0.35, floor 0, repeat pass off) it
+brings terrains 1 and 4 into band and terrain 6's γ and DP out of
+over-confidence, but leaves 2–3 cautious (Estimator 2's own γ variance exceeds
+the error's random part there) and makes terrain 5 over-confident (W, DP, γ
+1.6–1.9, 84–87 % within 2σ: the traced profile carries the estimates' own
+errors while the step edges pass): so it is not the default.
 
 **τ_R over the step just observed** (:func:`smoothed_random_walk_variance`).
 The τ_R increment of a step reaches the encoders only at the next step, so
@@ -349,24 +359,41 @@ def match_noise_scales(
 class ContactAngleBias:
     """The coloured error of γ̌ (module docstring), considered in the published variances.
 
+    σ_b² = ``sigma²`` + the path's error beyond the parabola
+    (:class:`~.rover_path_error.PathQuadratureError`, with ``path_error``) + the sinkage model's
+    share (:func:`~.rover_path_error.sinkage_tilt_variance`, ``sinkage_relative_error``), raised
+    to the repeat-pass measure with ``from_repeat_pass``.
+
     Attributes:
         enabled: add its effect (False: the filter's posterior variances as they are).
-        sigma: σ_b of the error (rad), a priori: the floor of each wheel's σ_b.
+        sigma: σ of what neither law sees (rad): a floor in quadrature.
         from_repeat_pass: raise σ_b to the error the wheels' repeat passes
             show (:class:`RepeatPassError`).
-        memory_steps: that variance is averaged over this many steps.
+        memory_steps: the measured variances are averaged over this many steps.
+        path_error: consider the parabola's error on the path the estimates
+            themselves trace (:class:`~.rover_path_error.PathQuadratureError`); off by default: measured on the
+            reproduction's runs it brings terrains 1 and 4 into band and stops terrain 6's γ, DP
+            over-confidence, but makes terrain 5 over-confident (W, DP, γ e²/σ² 1.6-1.9, 84-87 %
+            within 2σ) and leaves 2-3 cautious (the commit that added it has the table).
+        sinkage_relative_error: relative error of the sinkage model's wheel
+            sinkages (nominal soil): their tilt of the fitted path, times it,
+            is considered (:func:`~.rover_path_error.sinkage_tilt_variance`); 0: none.
     """
 
     enabled: bool = True
     sigma: float = 0.01
     from_repeat_pass: bool = True
     memory_steps: float = 5.0
+    path_error: bool = False
+    sinkage_relative_error: float = 0.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.sigma) and self.sigma >= 0.0):
             raise ValueError(f"sigma must be finite and ≥ 0, got {self.sigma!r}")
         if not (math.isfinite(self.memory_steps) and self.memory_steps >= 1.0):
             raise ValueError(f"memory_steps must be finite and ≥ 1, got {self.memory_steps!r}")
+        if not (math.isfinite(self.sinkage_relative_error) and self.sinkage_relative_error >= 0.0):
+            raise ValueError(f"sinkage_relative_error must be finite and ≥ 0, got {self.sinkage_relative_error!r}")
 
 
 def considered_variances(
@@ -377,22 +404,25 @@ def considered_variances(
     pull_var: Array,
     bias: ContactAngleBias,
     path_var: Array | float | None = None,
+    model_var: Array | float = 0.0,
 ) -> tuple[Array, Array, Array]:
     """Variances of γ, W, DP with the contact-angle error b considered (per wheel, (3,) each).
 
     The estimate follows γ̌ = γ + b, and W, DP are the load-cell forces
     rotated by γ̂ − ε (eqs. 81–82), so to first order
     ``Ŵ − W = DP b`` and ``DP̂ − DP = −W b``: the published variances gain
-    ``σ_b²``, ``DP² σ_b²`` and ``W² σ_b²``. ``path_var`` (rad², a scalar
-    or per wheel): the error's variance the repeat passes show
-    (:class:`RepeatPassError`); σ_b² is the larger of it and the prior
-    ``sigma²`` (with ``from_repeat_pass``).
+    ``σ_b²``, ``DP² σ_b²`` and ``W² σ_b²``. σ_b² is ``sigma²`` plus
+    ``model_var`` (rad², scalar or per wheel: the path's error beyond the
+    parabola and the sinkage model's share, :class:`~.rover_path_error.PathQuadratureError`,
+    :func:`~.rover_path_error.sinkage_tilt_variance`); ``path_var`` (rad², a scalar or per
+    wheel): the error's variance the repeat passes show
+    (:class:`RepeatPassError`), which raises σ_b² (with ``from_repeat_pass``).
     """
     if not bias.enabled:
         return gamma_var, load_var, pull_var
-    s2: Array | float = bias.sigma**2
+    s2: Array | float = bias.sigma**2 + np.asarray(model_var, dtype=float)
     if bias.from_repeat_pass and path_var is not None:
-        s2 = np.maximum(bias.sigma**2, np.asarray(path_var, dtype=float))
+        s2 = np.maximum(s2, np.asarray(path_var, dtype=float))
     return gamma_var + s2, load_var + pull * pull * s2, pull_var + load * load * s2
 
 

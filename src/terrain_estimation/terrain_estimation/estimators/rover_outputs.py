@@ -183,6 +183,7 @@ class RoverCounters:
     divergences: int = 0
     gated_general: int = 0
     gated_wheel_force: int = 0
+    beyond_curvature_validity: int = 0  # settled-or-not estimates over a span bent ≥ 1/l_w ([RB] V-B)
 
 
 @dataclass(frozen=True)

@@ -318,22 +318,39 @@ _ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "filter.contact_angle_bias",
         _EC.contact_angle_bias.sigma,
-        "[rad] sigma of the slowly varying error of the measured contact angles (path beyond the parabola through "
-        "the wheel centres, differential sinkage), added to the published variances of gamma, W, DP; 0 disables",
+        "[rad] sigma of a slowly varying error of the measured contact angles that neither the path nor the "
+        "sinkage law below sees, in quadrature with them; added (through sigma_b) to the published variances of "
+        "gamma, W, DP",
         0.0,
         0.5,
+    ),
+    ParamSpec(
+        "filter.contact_angle_path_error",
+        _EC.contact_angle_bias.path_error,
+        "consider the contact angles' error from the path beyond the parabola through the wheel centres, evaluated "
+        "on the slope profile the wheels' own estimates traced (Simpson's rule's error over the wheelbase; at a "
+        "curvature >= 1/vehicle.wheelbase at least a kink of the span's slope change); false: not considered",
+    ),
+    ParamSpec(
+        "filter.contact_angle_sinkage_error",
+        _EC.contact_angle_bias.sinkage_relative_error,
+        "[-] relative error of the sinkage model's wheel sinkages (nominal soil; a soil 2x stiffer: -35 %): their "
+        "tilt of the fitted path times it is considered; 0: none",
+        0.0,
+        10.0,
     ),
     ParamSpec(
         "filter.contact_angle_bias_from_repeat_pass",
         _EC.contact_angle_bias.from_repeat_pass,
         "raise the contact-angle error's sigma to what the wheels' repeat passes show (a trailing wheel meets the "
         "ground its leader met 0.35 m earlier: half the mean square difference of their contact-angle estimates, "
-        "less their variances); false: filter.contact_angle_bias alone",
+        "less their variances, a lower bound); false: not raised",
     ),
     ParamSpec(
         "filter.contact_angle_bias_memory",
         _EC.contact_angle_bias.memory_steps,
-        "[steps] the repeat-pass variance is averaged over this many estimator steps (5 = 1 s at 5 Hz)",
+        "[steps] the path-error and repeat-pass variances are averaged over this many estimator steps (5 = 1 s at "
+        "5 Hz)",
         1.0,
         1000.0,
     ),
@@ -651,7 +668,8 @@ CONFIG_PARAMETERS: dict[str, str] = {
     "gate_threshold": "filter.gate_threshold",
     "divergence": "filter.divergence_* (one monitor per filter)",
     "noise_matching": "filter.noise_matching, filter.noise_matching_*",
-    "contact_angle_bias": "filter.contact_angle_bias, filter.contact_angle_bias_from_repeat_pass, "
+    "contact_angle_bias": "filter.contact_angle_bias, filter.contact_angle_path_error, "
+    "filter.contact_angle_sinkage_error, filter.contact_angle_bias_from_repeat_pass, "
     "filter.contact_angle_bias_memory",
     "split_traction_slope": "filter.split_traction_slope",
     "settle_steps": "estimator.settle_steps",
@@ -708,10 +726,14 @@ def estimator_config(values: Mapping[str, ParamValue]) -> RoverEstimatorConfig:
             ceiling=_f(values, "filter.noise_matching_ceiling"),
         ),
         contact_angle_bias=ContactAngleBias(
-            enabled=_f(values, "filter.contact_angle_bias") > 0.0,
+            enabled=_f(values, "filter.contact_angle_bias") > 0.0
+            or bool(values["filter.contact_angle_path_error"])
+            or _f(values, "filter.contact_angle_sinkage_error") > 0.0,
             sigma=_f(values, "filter.contact_angle_bias"),
             from_repeat_pass=bool(values["filter.contact_angle_bias_from_repeat_pass"]),
             memory_steps=_f(values, "filter.contact_angle_bias_memory"),
+            path_error=bool(values["filter.contact_angle_path_error"]),
+            sinkage_relative_error=_f(values, "filter.contact_angle_sinkage_error"),
         ),
         split_traction_slope=_f(values, "filter.split_traction_slope"),
         settle_steps=int(values["estimator.settle_steps"]),
