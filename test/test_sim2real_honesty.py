@@ -278,3 +278,21 @@ def test_report_renders_the_new_verdicts() -> None:
     d = Diagnosis("toy.bag", "toy", 30.0, WhereTable([], [], {}, []), None, report, 1.0, model=model)
     text = diagnosis_markdown(d)
     assert "### The model's structure differs here" in text and "**why it is not that effect**" in text
+
+
+def test_a_nominal_fit_between_one_and_two_tolerances_is_within() -> None:
+    """A tolerance is 1σ: a nominal run fits beyond it a third of the time, so "outside" is judged at 2σ, the bound
+    the effects' within-tolerance test uses (the shipped rover_terrain_2 fitted sinkage_scale 0.7998 against
+    1 ± 0.2 and its report flagged it)."""
+    from types import SimpleNamespace
+
+    from terrain_analysis.sim2real.model import FitParameter
+    from terrain_analysis.sim2real.structure import _tolerance_rows
+
+    param = FitParameter("sinkage_scale", "–", 1.0, (0.0, 3.0), 0.1, prior_std=0.2)
+    model = SimpleNamespace(nuisance=[param])
+    rows = [
+        _tolerance_rows(model, SimpleNamespace(nuisance={"sinkage_scale": v}, nuisance_std={}))[0]  # type: ignore[arg-type]
+        for v in (0.7998, 1.39, 0.59, 1.41)
+    ]
+    assert [r["within"] for r in rows] == [True, True, False, False]

@@ -341,9 +341,10 @@ def _first_screen(d: Diagnosis, figures: Sequence[Path]) -> tuple[Section, int |
     if outside:
         blocks.append(
             Paragraph(
-                "Nominal parameters fitted **outside** their stated tolerance: "
+                "Nominal parameters fitted **outside** twice their stated tolerance: "
                 + ", ".join(
-                    f"{r['parameter']} = {r['fitted']:.4g} ({r['nominal']:.4g} ± {r['tolerance']:.3g})" for r in outside
+                    f"{r['parameter']} = {r['fitted']:.4g} ({r['nominal']:.4g} ± 2 × {r['tolerance']:.3g})"
+                    for r in outside
                 )
             )
         )
@@ -481,11 +482,11 @@ def _appendix(d: Diagnosis, figures: Sequence[Path], shown: Path | None) -> Sect
         blocks += [
             Heading(3, "Nominal tolerances"),
             Paragraph(
-                "Nominal parameters fitted within their stated tolerances (config section `/**/sim2real`; a mismatch "
-                "inside the tolerance is a nuisance, not a gap):"
+                "Nominal parameters fitted against their stated tolerances (config section `/**/sim2real`; a "
+                "mismatch within twice the tolerance, 2σ, is a nuisance, not a gap):"
             ),
             Table(
-                ["parameter", "nominal", "tolerance (1σ)", "fitted", "within"],
+                ["parameter", "nominal", "tolerance (1σ)", "fitted", "within 2σ"],
                 [
                     [
                         r["parameter"],
