@@ -737,29 +737,29 @@ class RoverTerrainEstimator(SensorWindows):
         bias = self.config.contact_angle_bias
         pitch, bogie = float(x1[_G.PITCH]), float(x1[_G.BOGIE])
         model_var = 0.0
-        if not initialised and bias.enabled and (bias.path_error or bias.sinkage_relative_error > 0.0):
-            # The parabola's error on the path the wheels traced, and the sinkage model's tilt (rover_noise);
-            # a (re)start's estimate carries its start covariance instead, and the traced profile starts again.
-            centres = wheel_centres(self.config.rover, configuration(pitch, bogie))
-            weights = path_tangent_angles(self.config.rover, pitch, bogie)[1]
-            if bias.path_error:
-                if is_settled(self._since_start, self.config.settle_steps):
-                    # Settled estimates only: a start's transient is no slope profile.
-                    self._path_error.update(self._distance, x2[0:3], v2[0:3], centres[:, 0], weights)
-                    self._c["beyond_curvature_validity"] += int(self._path_error.beyond_validity)
-                model_var += self._path_error.variance
-            sink = self._sinkage.sinkage if self.config.sinkage.enabled else None
-            if sink is not None:
-                model_var += sinkage_tilt_variance(centres[:, 0], sink, weights, bias.sinkage_relative_error)
         if not initialised:
             centres = wheel_centres(self.config.rover, configuration(pitch, bogie))
             self._repeat_pass.update(self._distance, x2[0:3], v2[0:3], np.diff(centres[:, 0]))
+            if bias.enabled and (bias.path_error or bias.sinkage_relative_error > 0.0):
+                # The parabola's error on the path the wheels traced, and the sinkage model's tilt
+                # (rover_path_error); a (re)start's estimate carries its start covariance instead, and the traced
+                # profile starts again.
+                weights = path_tangent_angles(self.config.rover, pitch, bogie)[1]
+                if bias.path_error:
+                    if is_settled(self._since_start, self.config.settle_steps):
+                        # Settled estimates only: a start's transient is no slope profile.
+                        self._path_error.update(self._distance, x2[0:3], v2[0:3], centres[:, 0], weights)
+                        self._c["beyond_curvature_validity"] += int(self._path_error.beyond_validity)
+                    model_var += self._path_error.variance
+                sink = self._sinkage.sinkage if self.config.sinkage.enabled else None
+                if sink is not None and bias.sinkage_relative_error > 0.0:
+                    model_var += sinkage_tilt_variance(centres[:, 0], sink, weights, bias.sinkage_relative_error)
         gamma_var, load_var, pull_var = considered_variances(
             v2[0:3], x2[3:6], v2[3:6], x2[6:9], v2[6:9], bias, self._repeat_pass.variance, model_var
         )
         if self.config.load_cell_axes == 1:
             # The split error of F̌_⊥ is as slow as the terrain: the filter averages it as if white; considered.
-            eps = carrier_angles(self.config.rover, configuration(float(x1[_G.PITCH]), float(x1[_G.BOGIE])))
+            eps = carrier_angles(self.config.rover, configuration(pitch, bogie))
             load_var, pull_var = split_considered(load_var, pull_var, x2[0:3] - eps, self._split_var)
         # Eq. 49 leaves out the wheels' inertial coupling to the carrier, I_wg (θ̈ + q̈1) on the bogie wheels
         # and I_wg θ̈ on the front: an error of τ_R that no innovation shows (considered, rover_noise).
