@@ -48,7 +48,9 @@ def test_fast_read_gives_rosbags_order(name: str, overlapping: Path, monkeypatch
     path = overlapping if name == "overlapping" else BAGS / name
     fast = _items(path, True, monkeypatch)
     assert fast == _items(path, False, monkeypatch)
-    assert len(fast) == (60 if name == "overlapping" else len(fast)) and fast
+    with Reader(path) as reader:
+        assert len(fast) == reader.message_count > 0  # every message, once
+    assert name != "overlapping" or len(fast) == 60
     monkeypatch.setattr(bag, "_FAST_READ", True)
     batches = list(read_bag_raw_batches(path))
     assert [(c.topic, t, raw) for b in batches for c, t, raw, _d in b] == fast

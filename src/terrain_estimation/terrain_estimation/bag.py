@@ -454,13 +454,13 @@ def _merged_batches(
         yield [(connmap[c.id], t, data) for t, _, c, data in waiting]
 
 
-#: The rosbags releases whose reader internals :func:`_fast_messages` copies (constraints.txt pins 0.11.9).
+#: The rosbags releases whose reader internals :func:`_fast_batches` copies (constraints.txt pins 0.11.9).
 _KNOWN_ROSBAGS = ("0.11.",)
 
 
 @cache
 def _rosbags_internals_known() -> bool:
-    """True when the installed rosbags is a release :func:`_fast_messages` was checked against (the names it
+    """True when the installed rosbags is a release :func:`_fast_batches` was checked against (the names it
     reaches into are private); any other release reads through rosbags' own loop."""
     import importlib.metadata
 
