@@ -534,6 +534,17 @@ def fit(
                 s[i] = np.clip(s[i] + sign * scale[i], lo[i], hi[i])
                 if s[i] != base[i]:
                     starts.append(s)
+        # The candidates' own extra starts (Candidate.starts): other laws of a shape family.
+        position = {(owner, p.name): i for i, (owner, p) in enumerate(layout)}
+        for cand in candidates:
+            if start_effects and cand.name in start_effects:
+                continue
+            for point in cand.starts:
+                s = base.copy()
+                for name, value in point:
+                    i = position[(cand.name, name)]
+                    s[i] = np.clip(value, lo[i], hi[i])
+                starts.append(s)
         # A coarse scan of each new parameter over its whole range: local starts miss
         # the global minimum of periodic costs (a delay against a narrow-band signal, the
         # location of a soil change). Its best point, if better than the base, is one more start.

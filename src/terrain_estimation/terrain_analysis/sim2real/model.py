@@ -98,6 +98,10 @@ class FitParameter:
             it (or at a bound of ``bounds`` other than ``off``) is reported as a
             structure gap, not as the effect (issue 22, item 3). None: the
             bounds are the plausible range.
+        physical_bounds: The fit range's ends are the parameter's physical
+            limits, each a valid model (a shape parameter running from one
+            law of its family to another), not a search limit: a best fit at
+            either end is no sign of a structure gap. Default False.
     """
 
     name: str
@@ -107,6 +111,7 @@ class FitParameter:
     scale: float
     prior_std: float | None = None
     plausible: tuple[float, float] | None = None
+    physical_bounds: bool = False
 
     def __post_init__(self) -> None:
         lo, hi = (float(v) for v in self.bounds)
@@ -139,11 +144,17 @@ class Candidate:
         name: Catalogue effect name (:data:`vehicle_sim.effects.CATALOGUE`).
         parameters: Its continuous parameters (empty: a switch).
         description: One line for the report.
+        starts: Extra starting points of the fit, each ((parameter, value), ...)
+            (the others at their off values): where one parameter does nothing while
+            another is off (a window's shape at zero length), the fit's own
+            starts, which move one parameter at a time from the nominal model,
+            cannot reach that parameter's other laws. Default none.
     """
 
     name: str
     parameters: tuple[FitParameter, ...]
     description: str = ""
+    starts: tuple[tuple[tuple[str, float], ...], ...] = ()
 
     @property
     def size(self) -> int:

@@ -49,8 +49,14 @@ Effects (:data:`vehicle_sim.effects.CATALOGUE`, same physics as the plant)
     * ``wheel_liftoff``: total ground force W + F_d ≥ 0;
     * ``suspension_friction``: F_c tanh(Δv / v_f), v_f = 0.02 m/s (2-DOF);
     * ``tire_damping``: c_t (ḣ − ẏ2) in parallel with the tire–soil chain (2-DOF);
-    * ``tire_enveloping``: the road averaged over the contact length L
-      (moving average over distance, from the profile's own x);
+    * ``tire_enveloping``: the road seen through a contact patch of length L,
+      the tandem (two-cam) form of Schmeitz and Pacejka (Pacejka, *Tire and
+      Vehicle Dynamics*, 3rd ed., § 10.2): two cams a base ρL apart, each the
+      mean over (1 − ρ)L, averaged (over distance, from the profile's own x).
+      ``tire_tandem_ratio`` ρ runs from the mean over the patch (0, the
+      catalogue's form) to the two-point follower (1); both ends are laws
+      of the family (:attr:`FitParameter.physical_bounds`), and the fit
+      starts from the two-point follower too (:attr:`Candidate.starts`);
     * ``sprung_mass_change``: m_s (1 + x), the static load W with it.
 
 Noise budget per channel: the config's accelerometer variance R plus what
@@ -126,6 +132,18 @@ def _candidates(vehicle: str) -> dict[str, Candidate]:
     """
 
     out = candidates_from_catalogue(vehicle)
+    if "tire_enveloping" in out:
+        length = out["tire_enveloping"].parameters[0]
+        out["tire_enveloping"] = Candidate(
+            "tire_enveloping",
+            (
+                length,
+                FitParameter("tire_tandem_ratio", "–", 0.0, (0.0, 1.0), 0.5, physical_bounds=True),
+            ),
+            "the road seen through the contact patch: two cams a base ρL apart, each the mean over (1 − ρ)L, "
+            "averaged (L the contact length; ρ = 0 the mean over the patch, ρ = 1 the two-point follower)",
+            starts=(((length.name, length.scale), ("tire_tandem_ratio", 1.0)),),
+        )
     streams = ("body", "wheel", "profile") if vehicle == "quarter_car" else ("body",)
     bound = RELATIVE_DELAY_BOUND
     out["sensor_delay"] = Candidate(
@@ -455,7 +473,7 @@ class QuarterCarReplay:
         # Samples a profile delayed by up to the fit bound would leave without road input are left out.
         self.max_relative_delay = RELATIVE_DELAY_BOUND
         self.valid = {c.name: self.times[c.name] <= float(self._grid[-1]) - RELATIVE_DELAY_BOUND for c in self.channels}
-        self._envelope_cache: dict[float, tuple[FloatArray, FloatArray]] = {}
+        self._envelope_cache: dict[tuple[float, float], tuple[FloatArray, FloatArray]] = {}
         # (R, σ_h² of the profile, Σ smoothing², Σ derivative²): the noise budget's pieces.
         self._noise = noise
         # LRV: (frequencies, posterior error density of the road N·S/(S+N), bin widths).
@@ -575,25 +593,51 @@ class QuarterCarReplay:
         transfer = -(w**2) * ground / (kt + 1j * w * float(v["vehicle.suspension_damping"]) - m * w**2)
         length = e.get("tire_contact_length", 0.0)
         if length > 1e-4:
-            transfer = transfer * np.sinc(f * length / self._speed_mean)  # moving average over L at the mean speed
+            # The enveloping window at the mean speed: two cams ρL apart, each the mean over (1 − ρ)L.
+            ratio = e.get("tire_tandem_ratio", 0.0)
+            wavenumber = f / self._speed_mean
+            cams = np.sinc(wavenumber * (1.0 - ratio) * length)
+            transfer = transfer * cams * np.cos(np.pi * wavenumber * ratio * length)
         scale = (1.0 + e.get("accel_scale_body", 0.0)) ** 2
         return {"body": math.sqrt(r_var + scale * float(np.sum(np.abs(transfer) ** 2 * density * width)))}
 
     # -- effects ----------------------------------------------------------
 
-    def _road(self, length: float) -> tuple[FloatArray, FloatArray]:
+    def _road(self, length: float, ratio: float = 0.0) -> tuple[FloatArray, FloatArray]:
+        """(h, ḣ) of the enveloped road: two cams ``ratio``·L apart, each the mean over (1 − ratio)·L."""
         if length <= 1e-4:
             return self._h, self._hd
-        key = round(length, 5)
+        key = (round(length, 5), round(ratio, 5))
         if key not in self._envelope_cache:
             s = self._distance
-            # ∫h ds by the trapezoid rule over the profile's own distances, then the centred window mean.
-            integral = np.concatenate([[0.0], np.cumsum(0.5 * (self._h[1:] + self._h[:-1]) * np.diff(s))])
-            half = 0.5 * length
-            lo = np.clip(s - half, s[0], s[-1])
-            hi = np.clip(s + half, s[0], s[-1])
-            width = np.maximum(hi - lo, 1e-9)
-            env = (np.interp(hi, s, integral) - np.interp(lo, s, integral)) / width
+            h = self._h
+            cam = (1.0 - ratio) * length
+            if cam > 1e-4:
+                # ∫h ds of the profile's linear interpolation, exact (piecewise quadratic: a linear
+                # interpolation of the integral would make a window shorter than the profile's spacing a
+                # step function of its position), then the centred window mean.
+                ds = np.diff(s)
+                integral = np.concatenate([[0.0], np.cumsum(0.5 * (h[1:] + h[:-1]) * ds)])
+                slope = np.diff(h) / np.maximum(ds, 1e-12)
+
+                def integral_at(x: FloatArray) -> FloatArray:
+                    i = np.clip(np.searchsorted(s, x, side="right") - 1, 0, s.size - 2)
+                    u = x - s[i]
+                    return np.asarray(integral[i] + u * (h[i] + 0.5 * slope[i] * u))
+
+                def cam_height(c: FloatArray) -> FloatArray:
+                    lo = np.clip(c - 0.5 * cam, s[0], s[-1])
+                    hi = np.clip(c + 0.5 * cam, s[0], s[-1])
+                    width = np.maximum(hi - lo, 1e-9)
+                    return np.asarray((integral_at(hi) - integral_at(lo)) / width)
+
+            else:
+
+                def cam_height(c: FloatArray) -> FloatArray:
+                    return np.asarray(np.interp(c, s, h))
+
+            base = ratio * length
+            env = cam_height(s) if base <= 1e-6 else 0.5 * (cam_height(s - 0.5 * base) + cam_height(s + 0.5 * base))
             if len(self._envelope_cache) > 64:
                 self._envelope_cache.clear()
             self._envelope_cache[key] = (env, self._smooth(env)[1])
@@ -637,7 +681,7 @@ class QuarterCarReplay:
                 e.get("soil_shape", 0.0),
             ]
         )
-        h, hd = self._road(e.get("tire_contact_length", 0.0))
+        h, hd = self._road(e.get("tire_contact_length", 0.0), e.get("tire_tandem_ratio", 0.0))
         a1, a2 = _simulate(h, hd, self._dt, params)
         self._last_grid_accelerations = (a1, a2)
         out = {}

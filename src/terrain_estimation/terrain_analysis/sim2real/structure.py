@@ -62,7 +62,8 @@ def _structure_reasons(
 ) -> list[str]:
     """Why the best (significant) explanation is a structure gap rather than the effect; [] if it is not.
 
-    * a parameter at a bound of its fit range (other than its off value),
+    * a parameter at a bound of its fit range (other than its off value, and
+      unless both ends are physical: :attr:`FitParameter.physical_bounds`),
       or outside its plausible range (:attr:`FitParameter.plausible`);
     * a nominal parameter with a tolerance (a prior) fitted beyond 3× it;
     * its held-out residual still fails the noise tests and its shrinkage
@@ -80,7 +81,9 @@ def _structure_reasons(
             v = float(best.parameters.get(effect, {}).get(p.name, p.off))
             lo, hi = p.bounds
             tol = settings.bound_tolerance * (hi - lo)
-            if v <= lo + tol and lo != p.off:
+            if p.physical_bounds:
+                pass  # both ends are laws of its family (FitParameter.physical_bounds)
+            elif v <= lo + tol and lo != p.off:
                 reasons.append(f"{effect}.{p.name} = {v:.4g} {p.unit} is at the lower bound {lo:g} of its fit range")
             elif v >= hi - tol and hi != p.off:
                 reasons.append(f"{effect}.{p.name} = {v:.4g} {p.unit} is at the upper bound {hi:g} of its fit range")
