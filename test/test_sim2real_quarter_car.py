@@ -347,3 +347,20 @@ def test_the_independent_generators_two_point_follower_is_attributed(
     best = json.loads((out / "diagnosis.json").read_text())["attribution"]["best"]
     true_length = label["parameters"]["tire_contact_length"]
     assert best["parameters"]["tire_enveloping"]["tire_contact_length"] == pytest.approx(true_length, rel=0.15)
+
+
+def test_a_late_profile_is_found_when_the_nominal_fit_ran_the_soil_to_its_bound(tmp_path: Path) -> None:
+    # A profile 0.25 s late misleads the onboard estimator (the replay's starting k_s, 33 kN/m for a soil
+    # of 651 kN/m) and the nominal fit runs the soil stiffness to the bottom of its range (1/30 of the
+    # start). An effect fit started from there never came back ("not explained", 99 % left); each start
+    # is now also tried with that nuisance at the best point of a scan over its range.
+    bag = _bag(tmp_path, "late_profile", **{"effects.sensor_delay_profile": 0.25})
+    model = build_model(bag, "quarter_car")  # k_s from the estimator, as the command line does
+    report, fitted = _fit_only(model, "sensor_delay")
+    nominal_ln_k_s = report.nominal.nuisance["ln_k_s"]
+    assert nominal_ln_k_s == pytest.approx(model.nuisance[0].bounds[0], abs=0.05)  # the premise: at its bound
+    for stream in ("body", "wheel"):
+        assert fitted[f"delay_{stream}"] - fitted["delay_profile"] == pytest.approx(-0.25, abs=0.005)
+    k_s = math.exp(report.ranking[0].nuisance["ln_k_s"])
+    assert k_s == pytest.approx(soil_by_name(SOIL).k_s, rel=0.1)
+    assert report.kind == "explained", report.verdict

@@ -561,6 +561,29 @@ def fit(
             if grid_best is not None:
                 known[len(starts)] = grid_cost
                 starts.append(grid_best)
+        # A nuisance at a bound of its range in the start is a nominal fit that absorbed the gap into it
+        # (a profile 0.23 s late drove the soil stiffness to its bound, 1/700 of the true one, and no
+        # delay fit came back from there): each start once more with that nuisance at the best point of
+        # a scan over its range.
+        span_all = hi - lo
+        stuck = [
+            i
+            for i in range(n_nuis)
+            if min(base[i] - lo[i], hi[i] - base[i]) <= settings.bound_tolerance * span_all[i]
+        ]
+        if stuck and settings.grid_points > 0:
+            for k in range(len(starts)):
+                rescued, rescued_cost = None, math.inf
+                for i in stuck:
+                    for v in np.linspace(lo[i], hi[i], settings.grid_points):
+                        s = starts[k].copy()
+                        s[i] = v
+                        c = _cost(s)
+                        if c < rescued_cost:
+                            rescued, rescued_cost = s, c
+                if rescued is not None:
+                    known[len(starts)] = rescued_cost
+                    starts.append(rescued)
         # Screen the starts by their cost (one evaluation each) and run the optimiser from the
         # base and the best others only: 2p ± starts of a 5-parameter effect would cost 11 fits.
         if len(starts) > settings.max_starts:
