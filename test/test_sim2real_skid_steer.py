@@ -216,3 +216,58 @@ def test_roll_and_pitch_gyros_carry_the_load_transfer_dynamics():
     assert "roll_rate" not in {c.name for c in SkidSteerReplay(_data(result), VEHICLE, warmup=WARMUP).channels}
     rigid = replace(VEHICLE, suspension=None)
     assert "pitch_rate" not in {c.name for c in SkidSteerReplay(_data(result, rates), rigid, warmup=WARMUP).channels}
+
+
+def test_relaxation_lengths_and_speed_law_are_continuous_parameters():
+    # Issue 22: a real tire's relaxation lengths vary, and the lag's speed is the contact's travel speed in
+    # Pacejka's transient slip or the larger of it and the rolling speed (the catalogue's plant): the
+    # candidate fits L_x, L_y and the weight w of V = max(w R|ω|, |v_contact|, V_floor).
+    model = _model(_simulate("small_radius_turn", {"tire_relaxation": {}}, duration=6.0))
+    cand = model.candidates["tire_relaxation"]
+    assert [p.name for p in cand.parameters] == [
+        "relaxation_length_x",
+        "relaxation_length_y",
+        "relaxation_rolling_weight",
+    ]
+    lengths = {
+        "relaxation_length_x": VEHICLE.longitudinal_relaxation_length,
+        "relaxation_length_y": VEHICLE.lateral_relaxation_length,
+    }
+    switch = model.predict({"tire_relaxation": {}}, {})  # the catalogue's form: the vehicle's lengths, w = 1
+    explicit = model.predict({"tire_relaxation": {**lengths, "relaxation_rolling_weight": 1.0}}, {})
+    contact = model.predict({"tire_relaxation": {**lengths, "relaxation_rolling_weight": 0.0}}, {})
+    none = model.predict({"tire_relaxation": {"relaxation_length_x": 0.0, "relaxation_length_y": 0.0}}, {})
+    nominal = model.predict({}, {})
+    # One axis without lag (5 mm: the stiff slip equations return, and the replay sub-steps for them) beside
+    # one with the vehicle's lag: converged (a 10x finer integration step gives the same prediction).
+    one_axis = {"relaxation_length_x": 0.0, "relaxation_length_y": VEHICLE.lateral_relaxation_length}
+    half = model.predict({"tire_relaxation": one_axis}, {})
+    fine = _model(_simulate("small_radius_turn", {"tire_relaxation": {}}, duration=6.0))
+    fine.integration_step = model.integration_step / 10.0
+    near = fine.predict({"tire_relaxation": one_axis}, {})
+    use = model.data.t >= WARMUP
+    apart = []
+    for c in model.channels:
+        np.testing.assert_allclose(switch[c.name], explicit[c.name], rtol=0.0, atol=1e-12)
+        np.testing.assert_allclose(none[c.name], nominal[c.name], rtol=0.0, atol=1e-12)  # no lag: nominal
+        assert np.all(np.isfinite(half[c.name]))
+        assert np.sqrt(np.mean((half[c.name] - near[c.name])[use] ** 2)) < 0.01 * c.noise_std, c.name
+        apart.append(np.sqrt(np.mean((contact[c.name] - explicit[c.name])[use] ** 2)) / c.noise_std)
+    # In a skid-steer turn the wheels roll faster than their contact travels: the law moves the prediction
+    # (here by 0.016 σ on a_y with the vehicle's short lengths; the independent generator's 0.2-1.4 m lengths
+    # at up to 3.6 m/s made the contact law the one its bags fitted).
+    assert max(apart) > 0.005
+
+
+def test_relaxation_lengths_of_the_plant_are_fitted():
+    # The catalogue's plant lags its tire forces over the vehicle's lengths with V = max(R|ω|, |v_c|, floor):
+    # on an acceleration run the fitted L_x is the plant's.
+    from terrain_analysis.sim2real.attribution import attribute
+
+    model = _model(_simulate("straight_acceleration", {"tire_relaxation": {}}, duration=10.0))
+    model.candidates = {"tire_relaxation": model.candidates["tire_relaxation"]}
+    report = attribute(model)
+    assert report.ranking[0].name == "tire_relaxation"
+    fitted = report.ranking[0].parameters["tire_relaxation"]
+    assert fitted["relaxation_length_x"] == pytest.approx(VEHICLE.longitudinal_relaxation_length, rel=0.25)
+    assert report.ranking[0].shrinkage["overall"] > 0.9

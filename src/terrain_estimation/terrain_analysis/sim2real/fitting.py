@@ -567,9 +567,7 @@ def fit(
         # a scan over its range.
         span_all = hi - lo
         stuck = [
-            i
-            for i in range(n_nuis)
-            if min(base[i] - lo[i], hi[i] - base[i]) <= settings.bound_tolerance * span_all[i]
+            i for i in range(n_nuis) if min(base[i] - lo[i], hi[i] - base[i]) <= settings.bound_tolerance * span_all[i]
         ]
         if stuck and settings.grid_points > 0:
             for k in range(len(starts)):

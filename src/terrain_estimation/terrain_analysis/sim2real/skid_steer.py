@@ -80,8 +80,9 @@ written separately)
     Physics (a re-run of the replay): ``wheel_radius_error`` (R(1 + e) in
     the slips), ``friction_change`` (μ × factor),
     ``cornering_stiffness_change`` (C_α × factor), ``load_transfer_dynamics``
-    (switch), ``tire_relaxation`` (switch), ``terrain_grade`` (a ground plane
-    fixed in the world, grade γ and bank β at the start heading: gravity in
+    (switch), ``tire_relaxation`` (relaxation lengths L_x, L_y, 0: no lag on
+    that axis, and the lag's speed law, :data:`RELAXATION_CANDIDATE`),
+    ``terrain_grade`` (a ground plane fixed in the world, grade γ and bank β at the start heading: gravity in
     the plane's axes g_p = −g (sin γ, cos γ sin β, ·), turned into the body
     frame by the replay's own heading ψ = ∫ r dt, g_bx = g_px cos ψ +
     g_py sin ψ, g_by = −g_px sin ψ + g_py cos ψ; loads and IMU z carry

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from terrain_analysis.sim2real.skid_steer_vehicle import ReplayVehicle, equal_spring_loads, no_slip_motion
 from terrain_estimation.jit import compiled
 
-__all__ = ["TURNING_RESISTANCE_SPEED", "Physics", "Sensing", "replay_imu"]
+__all__ = ["RELAXATION_LENGTH_MIN", "TURNING_RESISTANCE_SPEED", "Physics", "Sensing", "replay_imu"]
 
 FloatArray = NDArray[np.float64]
 
@@ -25,8 +25,8 @@ FloatArray = NDArray[np.float64]
 _P_RADIUS, _P_CX, _P_CA, _P_MU, _P_FLOOR, _P_MASS, _P_IZ, _P_RR, _P_INV_RRV = range(9)
 _P_GPX, _P_GN, _P_RELAX, _P_INV_LX, _P_INV_LY, _P_RELAX_FLOOR, _P_LOADDYN = range(9, 16)
 _P_KR, _P_CR, _P_KP, _P_CP, _P_ROLL_DRIVE, _P_PITCH_DRIVE, _P_IR, _P_IP, _P_ROLL_ARM, _P_PITCH_ARM = range(16, 26)
-_P_GPY, _P_BULL, _P_INV_VB = range(26, 29)
-_N_P = 29
+_P_GPY, _P_BULL, _P_INV_VB, _P_RELAX_ROLLING = range(26, 30)
+_N_P = 30
 #: Rows of the derivative's work array (per wheel): contact speeds, slips, loads, rolling resistance, wheel speed,
 #: tire forces, lateral sliding resistance. Indexed in two dimensions, not through row views: numba makes each view
 #: a reference-counted array on every call (≈ 10 % of the replay's time).
@@ -34,6 +34,12 @@ _W_CVX, _W_CVY, _W_SX, _W_SY, _W_LOAD, _W_RPL, _W_OM, _W_FX, _W_FY, _W_SLIDING =
 #: Lateral contact speed over which the soil's lateral resistance (turning_resistance) builds up (m/s): the
 #: catalogue's stated form F_b = −c_b F_z tanh(v_y / 0.05 m/s).
 TURNING_RESISTANCE_SPEED = 0.05
+#: Shortest relaxation length the replay integrates (m): 5 mm lags the force by 5 ms at 1 m/s, below one IMU
+#: sample, so a fitted length of 0 (no lag on that axis) runs as this one.
+RELAXATION_LENGTH_MIN = 0.005
+#: Below this relaxation length (m) the lagged forces follow the slips so closely that the slip equations'
+#: own stiffness returns: the replay sub-steps for it as without a lag.
+RELAXATION_LENGTH_STIFF = 0.05
 
 
 @compiled(error_model="numpy")
@@ -126,7 +132,7 @@ def _derivative(s, oml, omr, hfx, hfy, p, wx, wy, side, static, lpfx, lpfy, ru, 
         ssy = ca_sy * scale
         if relax:
             contact = math.hypot(work[_W_CVX, i], work[_W_CVY, i])
-            speed = max(max(radius * abs(work[_W_OM, i]), contact), p[_P_RELAX_FLOOR])
+            speed = max(max(p[_P_RELAX_ROLLING] * radius * abs(work[_W_OM, i]), contact), p[_P_RELAX_FLOOR])
             out[7 + i] = speed * (ssx - work[_W_FX, i]) * p[_P_INV_LX]
             out[7 + n + i] = speed * (ssy - work[_W_FY, i]) * p[_P_INV_LY]
         else:
@@ -235,10 +241,19 @@ def _replay_kernel(t, omega, x0, p, wx, wy, side, static, lpfx, lpfy, ru, pu, ba
     for k in range(m - 1):
         dt_total = t[k + 1] - t[k]
         steps = max(1, int(math.ceil(dt_total / base_dt - 1e-9)))
-        if not relax:
+        if not relax or max(p[_P_INV_LX], p[_P_INV_LY]) > 1.0 / RELAXATION_LENGTH_STIFF:
+            # Without a lag (or with one so short that the forces follow the slips at once) the slip
+            # equations are stiff at low rolling speed.
             om_min = min(min(abs(omega[k, 0]), abs(omega[k, 1])), min(abs(omega[k + 1, 0]), abs(omega[k + 1, 1])))
             rolling = max(radius * om_min, floor)
             stiff = int(math.ceil(stiff_rate / rolling * dt_total / 2.0))
+            steps = max(steps, min(stiff, 400))
+        if relax:
+            # The force lag's rate V/L: a short relaxation length is a stiff mode, RK4 needs h V/L <= 2
+            # (V: twice the fastest rolling speed, a margin for sliding contact).
+            om_max = max(max(abs(omega[k, 0]), abs(omega[k, 1])), max(abs(omega[k + 1, 0]), abs(omega[k + 1, 1])))
+            speed = 2.0 * max(radius * om_max, p[_P_RELAX_FLOOR])
+            stiff = int(math.ceil(speed * max(p[_P_INV_LX], p[_P_INV_LY]) * dt_total / 2.0))
             steps = max(steps, min(stiff, 400))
         h = dt_total / steps
         for j in range(steps):
@@ -296,6 +311,9 @@ class Physics:
     turning_resistance: float = 0.0
     load_transfer_dynamics: bool = False
     tire_relaxation: bool = False
+    relaxation_length_x: float | None = None
+    relaxation_length_y: float | None = None
+    relaxation_rolling_weight: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -383,9 +401,11 @@ def replay_imu(
     p[_P_GPX], p[_P_GPY], p[_P_GN] = -g * sg, -g * cg * sb, g * cos_grade
     p[_P_BULL], p[_P_INV_VB] = physics.turning_resistance, 1.0 / TURNING_RESISTANCE_SPEED
     p[_P_RELAX] = 1.0 if physics.tire_relaxation else 0.0
-    p[_P_INV_LX] = 1.0 / vehicle.longitudinal_relaxation_length
-    p[_P_INV_LY] = 1.0 / vehicle.lateral_relaxation_length
+    lx, ly = physics.relaxation_length_x, physics.relaxation_length_y
+    p[_P_INV_LX] = 1.0 / (vehicle.longitudinal_relaxation_length if lx is None else max(lx, RELAXATION_LENGTH_MIN))
+    p[_P_INV_LY] = 1.0 / (vehicle.lateral_relaxation_length if ly is None else max(ly, RELAXATION_LENGTH_MIN))
     p[_P_RELAX_FLOOR] = vehicle.relaxation_speed_floor
+    p[_P_RELAX_ROLLING] = physics.relaxation_rolling_weight
     p[_P_LOADDYN] = 1.0 if load_dyn else 0.0
     if load_dyn:
         assert susp is not None

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from terrain_analysis.sim2real.model import Candidate, Channel, FitParameter, candidates_from_catalogue
 from terrain_analysis.sim2real.skid_steer_bag import SkidSteerBagData, wheel_speeds_at
 from terrain_analysis.sim2real.skid_steer_input import smooth_wheel_speeds
-from terrain_analysis.sim2real.skid_steer_kernel import Physics, Sensing, replay_imu
+from terrain_analysis.sim2real.skid_steer_kernel import RELAXATION_LENGTH_MIN, Physics, Sensing, replay_imu
 from terrain_analysis.sim2real.skid_steer_vehicle import ReplayVehicle, no_slip_motion
 
 __all__ = ["DIAGNOSIS_STEP", "NUISANCE", "SkidSteerReplay"]
@@ -71,6 +71,44 @@ _SENSOR_CHANNEL = {
     "gyro_bias_y": "pitch_rate",
     "gyro_scale": "yaw_rate",
 }
+
+
+#: ``tire_relaxation`` with its lengths fitted (the catalogue's is a switch with the vehicle's lengths): a real
+#: tire's relaxation lengths vary with the tire, its load and inflation (Pacejka, *Tire and Vehicle Dynamics*,
+#: ch. 7: about 0.5-2 wheel radii laterally, shorter along), and a switch with fixed ones cannot tell the
+#: independent generator's 0.2-1.3 m apart from a wheel-speed delay (0 of 6 attributed). A length of 0 is no
+#: lag on that axis. The lag's rate V/L needs the speed at which the carcass deflection is carried away: the
+#: literature uses the contact's travel speed |v_c| (Pacejka's transient slip) or, so that a spinning wheel on
+#: a stuck vehicle still builds its force, the larger of that and the rolling speed R|ω| (the catalogue's
+#: plant); ``relaxation_rolling_weight`` w spans both, V = max(w R|ω|, |v_c|, V_floor), and the fit starts
+#: from each end (both ends laws of the family).
+RELAXATION_CANDIDATE = Candidate(
+    "tire_relaxation",
+    (
+        FitParameter("relaxation_length_x", "m", 0.0, (0.0, 2.5), 0.3),
+        FitParameter("relaxation_length_y", "m", 0.0, (0.0, 2.5), 0.5),
+        FitParameter("relaxation_rolling_weight", "–", 1.0, (0.0, 1.0), 0.5, physical_bounds=True),
+    ),
+    "first-order tire force lag Ḟ = (V/L)(F_ss − F), relaxation length L_x along and L_y across the wheel "
+    "(0: no lag on that axis), V = max(w R|ω|, |v_contact|, V_floor)",
+    starts=(
+        (("relaxation_length_x", 0.3), ("relaxation_length_y", 0.5), ("relaxation_rolling_weight", 0.0)),
+        (("relaxation_length_x", 0.3), ("relaxation_length_y", 0.5), ("relaxation_rolling_weight", 1.0)),
+    ),
+)
+
+
+def _no_lag(values: Mapping[str, float]) -> bool:
+    """Whether relaxation lengths are given and both are below the shortest the replay integrates (no lag)."""
+    return all(name in values and float(values[name]) <= RELAXATION_LENGTH_MIN for name in _LENGTHS)
+
+
+_LENGTHS = ("relaxation_length_x", "relaxation_length_y")
+
+
+def _optional(values: Mapping[str, float], name: str) -> float | None:
+    """``values[name]`` as a float, None when absent (the vehicle's own value then)."""
+    return float(values[name]) if name in values else None
 
 
 def _restrict_to_channels(
@@ -172,6 +210,9 @@ class SkidSteerReplay:
                 self.notes.append(
                     "load_transfer_dynamics not offered: the vehicle config has no suspension (rigid chassis)"
                 )
+        candidates = dict(candidates)
+        if "tire_relaxation" in candidates and not candidates["tire_relaxation"].parameters:
+            candidates["tire_relaxation"] = RELAXATION_CANDIDATE
         self.candidates: Mapping[str, Candidate] = _restrict_to_channels(candidates, self._channel_names, self.notes)
         if "wheel_speed_delay" in self.candidates:
             # The IMU's last d seconds follow wheel speeds the bag no longer holds: with the encoder-stream delay
@@ -234,7 +275,10 @@ class SkidSteerReplay:
             terrain_bank=value("terrain_grade", "terrain_bank", 0.0),
             turning_resistance=value("turning_resistance", "turning_resistance", 0.0),
             load_transfer_dynamics="load_transfer_dynamics" in effects,
-            tire_relaxation="tire_relaxation" in effects,
+            tire_relaxation="tire_relaxation" in effects and not _no_lag(effects["tire_relaxation"]),
+            relaxation_length_x=_optional(effects.get("tire_relaxation", {}), "relaxation_length_x"),
+            relaxation_length_y=_optional(effects.get("tire_relaxation", {}), "relaxation_length_y"),
+            relaxation_rolling_weight=value("tire_relaxation", "relaxation_rolling_weight", 1.0),
         )
         sensing = Sensing(
             shift=value("sensor_delay", "sensor_delay", 0.0) - value("wheel_speed_delay", "wheel_speed_delay", 0.0),
