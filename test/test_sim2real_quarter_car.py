@@ -364,3 +364,18 @@ def test_a_late_profile_is_found_when_the_nominal_fit_ran_the_soil_to_its_bound(
     k_s = math.exp(report.ranking[0].nuisance["ln_k_s"])
     assert k_s == pytest.approx(soil_by_name(SOIL).k_s, rel=0.1)
     assert report.kind == "explained", report.verdict
+
+
+def test_the_soil_nuisance_reaches_the_true_soil_from_a_start_thrown_far_off(tmp_path: Path) -> None:
+    # The replay starts k_s at the onboard estimator's final value, which a sensor effect can throw far off (a
+    # profile 38 ms late gave 2.5 kN/m for a 651 kN/m soil in the independent suite): the nuisance's range was
+    # a factor 30 about the start and excluded the truth ("structure differs", half the gap left). It now
+    # always spans 1 kN/m-100 MN/m.
+    bag = _bag(tmp_path, "late_profile", **{"effects.sensor_delay_profile": 0.04})
+    model = build_model(bag, "quarter_car", k_s=2.5e3)
+    low, high = model.nuisance[0].bounds
+    assert math.exp(low) <= 1.0e3 and math.exp(high) >= 1.0e8
+    report, fitted = _fit_only(model, "sensor_delay")
+    for stream in ("body", "wheel"):
+        assert fitted[f"delay_{stream}"] - fitted["delay_profile"] == pytest.approx(-0.04, abs=0.005)
+    assert math.exp(report.ranking[0].nuisance["ln_k_s"]) == pytest.approx(soil_by_name(SOIL).k_s, rel=0.1)

@@ -165,6 +165,21 @@ def _candidates(vehicle: str) -> dict[str, Candidate]:
     return out
 
 
+#: Soil stiffness range (N/m) the ln k_s nuisance may always reach, whatever its start: from a soft sand's
+#: 1 kN/m to 100 MN/m, far beyond a tire's stiffness (a rigid ground).
+SOIL_STIFFNESS_RANGE = (1.0e3, 1.0e8)
+
+
+def _soil_nuisance(k_s: float) -> FitParameter:
+    """The ln k_s nuisance started at ``k_s`` (N/m): a factor 30 either side, and never narrower than
+    :data:`SOIL_STIFFNESS_RANGE`. Its start is the onboard estimator's final k_s, which a sensor effect can
+    throw far off: a profile 38 ms late gave 2.5 kN/m for a 651 kN/m soil, outside a range of 30× about it."""
+    ln = math.log(k_s)
+    low = min(ln - math.log(30.0), math.log(SOIL_STIFFNESS_RANGE[0]))
+    high = max(ln + math.log(30.0), math.log(SOIL_STIFFNESS_RANGE[1]))
+    return FitParameter("ln_k_s", "ln(N/m)", ln, (low, high), 0.2)
+
+
 def _periodic(x: FloatArray) -> tuple[FloatArray, float, FloatArray]:
     """(ramp, slope per sample, odd periodic extension of x − ramp): no jump in value or slope at the ends."""
     n = x.size
@@ -467,8 +482,7 @@ class QuarterCarReplay:
         self.notes = notes
         self.gravity = float(values["estimator.gravity"])
         self.k_s_start = k_s
-        ln = math.log(k_s)
-        self.nuisance = [FitParameter("ln_k_s", "ln(N/m)", ln, (ln - math.log(30.0), ln + math.log(30.0)), 0.2)]
+        self.nuisance = [_soil_nuisance(k_s)]
         self.candidates: dict[str, Candidate] = _candidates(vehicle)
         # Samples a profile delayed by up to the fit bound would leave without road input are left out.
         self.max_relative_delay = RELATIVE_DELAY_BOUND
@@ -535,8 +549,7 @@ class QuarterCarReplay:
         if not (k_s > 0.0 and math.isfinite(k_s)):
             raise Sim2RealError(f"starting soil stiffness must be positive and finite, got {k_s}")
         self.k_s_start = float(k_s)
-        ln = math.log(k_s)
-        self.nuisance = [FitParameter("ln_k_s", "ln(N/m)", ln, (ln - math.log(30.0), ln + math.log(30.0)), 0.2)]
+        self.nuisance = [_soil_nuisance(k_s)]
         self.channels = [Channel(c.name, c.topic, c.unit, self.noise_std_for({}, {})[c.name]) for c in self.channels]
         return self
 
