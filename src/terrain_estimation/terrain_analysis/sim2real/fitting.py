@@ -549,15 +549,22 @@ def fit(
         # the global minimum of periodic costs (a delay against a narrow-band signal, the
         # location of a soil change). Its best point, if better than the base, is one more start.
         known: dict[int, float] = {}  # start index -> cost already evaluated
-        if free and settings.grid_points > 0:
-            grid_best, grid_cost = None, _cost(base)
-            for i in free:
+
+        def scan(start: FloatArray, indices: Sequence[int], below: float) -> tuple[FloatArray | None, float]:
+            """The best point (and its cost) of ``start`` with one of ``indices`` moved over its range, if
+            any costs less than ``below``."""
+            found: FloatArray | None = None
+            for i in indices:
                 for v in np.linspace(lo[i], hi[i], settings.grid_points):
-                    s = base.copy()
+                    s = start.copy()
                     s[i] = v
                     c = _cost(s)
-                    if c < grid_cost:
-                        grid_best, grid_cost = s, c
+                    if c < below:
+                        found, below = s, c
+            return found, below
+
+        if free and settings.grid_points > 0:
+            grid_best, grid_cost = scan(base, free, _cost(base))
             if grid_best is not None:
                 known[len(starts)] = grid_cost
                 starts.append(grid_best)
@@ -571,14 +578,7 @@ def fit(
         ]
         if stuck and settings.grid_points > 0:
             for k in range(len(starts)):
-                rescued, rescued_cost = None, math.inf
-                for i in stuck:
-                    for v in np.linspace(lo[i], hi[i], settings.grid_points):
-                        s = starts[k].copy()
-                        s[i] = v
-                        c = _cost(s)
-                        if c < rescued_cost:
-                            rescued, rescued_cost = s, c
+                rescued, rescued_cost = scan(starts[k], stuck, math.inf)
                 if rescued is not None:
                     known[len(starts)] = rescued_cost
                     starts.append(rescued)
