@@ -296,3 +296,42 @@ def test_a_nominal_fit_between_one_and_two_tolerances_is_within() -> None:
         for v in (0.7998, 1.39, 0.59, 1.41)
     ]
     assert [r["within"] for r in rows] == [True, True, False, False]
+
+
+class _DeadParameterToy(ToyModel):
+    """The toy whose bias candidate carries a second parameter that the prediction never reads."""
+
+    def __init__(self, measured: np.ndarray, t: np.ndarray) -> None:
+        super().__init__(measured, t)
+        self.candidates = {
+            "bias": Candidate(
+                "bias",
+                (FitParameter("b", "m", 0.0, (-1.0, 1.0), 0.05), FitParameter("unused", "m", 0.0, (-1.0, 1.0), 0.05)),
+            )
+        }
+
+
+def test_a_parameter_the_data_do_not_constrain_has_no_interval() -> None:
+    """A direction of the fit the residual does not see has an infinite variance, not the zero a plain
+    pseudo-inverse gives it (the quarter car's sub-spacing enveloping window once came back with a
+    1e-11 m wide interval that way): no interval, said so in the report; the identified bias keeps its own."""
+    from terrain_analysis.sim2real.fitting import _information_inverse
+
+    h = np.array([[4.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 9.0]])  # the first two only as 2a + b
+    inv, unidentified = _information_inverse(h)
+    assert unidentified.tolist() == [True, True, False]
+    assert inv[2, 2] == pytest.approx(1.0 / 9.0)
+    inv, unidentified = _information_inverse(np.diag([1e-30, 1e30]))  # tiny but not zero: units, not rank
+    assert not unidentified.any() and inv[0, 0] == pytest.approx(1e30)
+
+    base = _toy({"bias": {"b": 0.05}}, seed=62)
+    report = attribute(_DeadParameterToy(base.measured["y"], base.times["y"]), FAST)
+    bias = next(m for m in report.ranking if m.name == "bias")
+    assert math.isinf(bias.std["bias"]["unused"])
+    assert bias.interval["bias"]["unused"] == (-math.inf, math.inf)
+    assert 0.0 < bias.std["bias"]["b"] < 0.01
+    assert bias.parameters["bias"]["b"] == pytest.approx(0.05, abs=0.02)
+    assert json.loads(json.dumps(bias.to_dict()))["std"]["bias"]["unused"] is None
+    from terrain_analysis.sim2real.report import _fmt_params
+
+    assert "unused = " in _fmt_params(bias) and "not identified by the data" in _fmt_params(bias)

@@ -460,7 +460,7 @@ def _parameter_std(
     n = r_train.size
     t, _, _ = problem.train_layout()
     j_data = jac[:n]
-    h_inv = np.linalg.pinv(jac.T @ jac)
+    h_inv, unidentified = _information_inverse(jac.T @ jac)
     s2 = float(np.dot(r_train, r_train)) / max(1, n - jac.shape[1])
     white = np.clip(np.diag(h_inv) * s2, 0.0, None)
     span = float(t.max() - t.min()) if n else 0.0
@@ -472,6 +472,7 @@ def _parameter_std(
     _, ids = np.unique(ids, return_inverse=True)
     batches = int(ids.max()) + 1 if n else 0
     if batches < 3:
+        white[unidentified] = np.inf
         return np.sqrt(white), np.full(white.size, np.inf), batches
     score = j_data * r_train[:, None]
     sums = np.zeros((batches, jac.shape[1]))
@@ -480,7 +481,39 @@ def _parameter_std(
     sandwich = np.clip(np.diag(h_inv @ meat @ h_inv), 0.0, None)
     # Where the white value is the larger, it is the estimate (from every sample: normal quantile).
     dof = np.where(sandwich >= white, float(batches - 1), np.inf)
-    return np.sqrt(np.maximum(sandwich, white)), dof, batches
+    var = np.maximum(sandwich, white)
+    var[unidentified] = np.inf
+    return np.sqrt(var), dof, batches
+
+
+#: A direction of the scaled information matrix whose eigenvalue is below this share of the largest
+#: carries no information from the data (finite-difference noise and round-off sit far above it only
+#: when the data do constrain it).
+UNIDENTIFIED_RCOND = 1e-12
+#: A parameter whose squared loading on such a direction exceeds this is not identified by the data.
+UNIDENTIFIED_LOADING = 1e-6
+
+
+def _information_inverse(h: FloatArray) -> tuple[FloatArray, BoolArray]:
+    """(H⁻¹ on the identified subspace, which parameters are not identified) of an information matrix.
+
+    A parameter the data do not constrain (a zero Jacobian column, or a combination of parameters the
+    residual cannot tell apart) has an infinite variance. A plain pseudo-inverse gives such a direction
+    zero variance instead, and with it a falsely tight interval. H is equilibrated by its diagonal
+    first, so that the rank decision does not depend on the parameters' units.
+    """
+    d = np.sqrt(np.clip(np.diag(h), 0.0, None))
+    zero = ~(d > 0.0)
+    scale = np.where(zero, 1.0, d)
+    hs = h / np.outer(scale, scale)
+    hs[zero, :] = 0.0
+    hs[:, zero] = 0.0
+    lam, vec = np.linalg.eigh(0.5 * (hs + hs.T))
+    top = float(lam.max()) if lam.size else 0.0
+    keep = lam > UNIDENTIFIED_RCOND * top if top > 0.0 else np.zeros(lam.shape, dtype=bool)
+    inv_s = (vec[:, keep] / lam[keep]) @ vec[:, keep].T
+    unidentified = zero | (np.sum(vec[:, ~keep] ** 2, axis=1) > UNIDENTIFIED_LOADING)
+    return inv_s / np.outer(scale, scale), unidentified
 
 
 def fit(

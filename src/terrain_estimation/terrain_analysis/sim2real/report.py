@@ -147,17 +147,25 @@ def _fmt_params(m: FittedModel) -> str:
         for name, value in params.items():
             sd = m.std.get(effect, {}).get(name, float("nan"))
             lo, hi = m.interval.get(effect, {}).get(name, (float("nan"), float("nan")))
-            parts.append(f"{name} = {value:.4g} ± {sd:.2g} [{lo:.4g}, {hi:.4g}]")
+            if math.isinf(sd):
+                parts.append(f"{name} = {value:.4g} (not identified by the data: no interval)")
+            else:
+                parts.append(f"{name} = {value:.4g} ± {sd:.2g} [{lo:.4g}, {hi:.4g}]")
         if not params:
             parts.append(f"{effect} on")
     return "; ".join(parts)
+
+
+def _pm(sd: float) -> str:
+    """" ± 1σ", or that the data do not identify the parameter (an infinite standard error)."""
+    return " (not identified)" if math.isinf(sd) else f" ± {sd:.2g}"
 
 
 def _short_params(m: FittedModel) -> str:
     """value ± 1σ of the model's effect parameters (the intervals are in the appendix)."""
     parts = []
     for effect, params in m.parameters.items():
-        parts += [f"{n} = {v:.4g} ± {m.std.get(effect, {}).get(n, float('nan')):.2g}" for n, v in params.items()]
+        parts += [f"{n} = {v:.4g}{_pm(m.std.get(effect, {}).get(n, float('nan')))}" for n, v in params.items()]
         if not params:
             parts.append(f"{effect} on")
     return "; ".join(parts)

@@ -326,7 +326,10 @@ def _flat(values: Any, prefix: str = "") -> dict[str, float]:
 
 
 def interval_coverage(rows: Sequence[tuple[dict[str, Any], dict[str, Any]]]) -> tuple[int, int]:
-    """(covered, total): true parameter values of right attributions inside the fit's interval (issue 22, item 5)."""
+    """(covered, total): true parameter values of right attributions inside the fit's interval (issue 22, item 5).
+
+    A parameter the data did not identify (infinite standard error, no bounds in the JSON) states no
+    interval and is not counted."""
     covered = total = 0
     for lab, r in rows:
         best = r.get("best") or {}
@@ -336,6 +339,8 @@ def interval_coverage(rows: Sequence[tuple[dict[str, Any], dict[str, Any]]]) -> 
         for name, truth in _flat(lab.get("parameters")).items():
             if name in intervals:
                 lo, hi = intervals[name]
+                if lo is None or hi is None:
+                    continue  # not identified by the data: no interval, so no claim to score
                 total += 1
                 covered += int(lo <= truth <= hi)
     return covered, total
