@@ -157,12 +157,10 @@ from terrain_estimation.estimators.rover_noise import (
     coupling_variance,
     is_settled,
     match_noise_scales,
-    nearest_covariance,
     process_block_part,
     rotated_force_noise_factor,
     smoothed_random_walk_variance,
     split_considered,
-    split_covariance,
     statistical_linearisation,
 )
 from terrain_estimation.estimators.rover_outputs import (
@@ -173,6 +171,7 @@ from terrain_estimation.estimators.rover_outputs import (
     WheelTerrainEstimate,
 )
 from terrain_estimation.estimators.rover_path_error import PathQuadratureError, sinkage_tilt_variance
+from terrain_estimation.estimators.rover_perpendicular import perpendicular_measurement
 from terrain_estimation.estimators.rover_response import (
     TerrainResponseAccumulator,
     TerrainResponseConfig,
@@ -198,8 +197,6 @@ from terrain_estimation.models.rover_estimators import (
     kinematic_terms,
     path_tangent_angles,
     pitch_from_gravity,
-    propagate_covariance,
-    synthesised_perpendicular_forces,
     wheel_force_measurement_variances,
 )
 from terrain_estimation.models.rover_sinkage import SinkageTracker
@@ -696,35 +693,11 @@ class RoverTerrainEstimator(SensorWindows):
     def _perpendicular(
         self, m: WindowMeans, x1: Array, P1: Array, gamma: Array, gamma_cov: Array
     ) -> tuple[Array, Array | None]:
-        """F̌_⊥ and, for Estimator 3, its covariance (eqs. 86–88 propagated); measured for Estimator 2.
-
-        The propagation takes Estimator 1's covariance of M_1fw, F_xfw, θ, q1,
-        the load-cell noise and (terrain-frame split) the covariance of γ̌;
-        the cross-covariance of γ̌ with θ, q1 is left out.
-        """
-        cfg = self.config
-        if cfg.load_cell_axes == 2:
-            return m.perpendicular_force, None
-        p = cfg.rover
-        terrain = cfg.perpendicular_split == "terrain"
-        idx = [_G.BOGIE_MOMENT, _G.FORCE_X, _G.PITCH, _G.BOGIE]
-        mean = np.concatenate([x1[idx], m.axial_force, gamma])
-        cov = np.zeros((10, 10))
-        cov[:4, :4] = nearest_covariance(P1[np.ix_(idx, idx)])
-        cov[4:7, 4:7] = np.diag(cfg.sensor_noise.load_cell**2 / m.cell_n)
-        if terrain:
-            cov[7:, 7:] = gamma_cov
-
-        def perp_of(v: Array) -> Array:
-            e = carrier_angles(p, configuration(v[2], v[3]))
-            return synthesised_perpendicular_forces(p, v[4:7], v[0], v[1], e, v[7:10] if terrain else None)
-
-        perp_cov = propagate_covariance(perp_of, mean, cov)
-        if terrain:
-            split = split_covariance(m.axial_force, x1[_G.SLIP], np.diag(P1)[_G.SLIP], cfg.split_traction_slope)
-            self._split_var = np.diag(split).copy()
-            perp_cov = perp_cov + split
-        return perp_of(mean), perp_cov
+        """F̌_⊥ and, for Estimator 3, its covariance (:func:`~.rover_perpendicular.perpendicular_measurement`)."""
+        perp, cov, split_var = perpendicular_measurement(self.config, m, x1, P1, gamma, gamma_cov)
+        if split_var is not None:
+            self._split_var = split_var
+        return perp, cov
 
     def _emit(
         self, t: float, *, initialised: bool, nis: tuple[float, float], accepted: bool, consistency: float = 0.0
