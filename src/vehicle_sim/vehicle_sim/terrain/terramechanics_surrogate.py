@@ -117,7 +117,10 @@ def fit_terramechanics_surrogate(
     grid_points: int = SURROGATE_GRID_POINTS,
     simpson_points: int = DEFAULT_SIMPSON_POINTS,
 ) -> TerramechanicsSurrogate:
-    """Fit the surrogate to the full model on the grid (no cache; see :func:`terramechanics_surrogate`).
+    """Fit the surrogate to the full model on the grid.
+
+    Uncached; :func:`terramechanics_surrogate` is this function cached in
+    memory, the surrogate for (soil, wheel) fitted at first use.
 
     Raises:
         vehicle_sim.terrain.wong_reece.WheelOverloadError: the wheel cannot
@@ -140,16 +143,9 @@ def fit_terramechanics_surrogate(
     )
 
 
-@functools.lru_cache(maxsize=8)
-def terramechanics_surrogate(
-    soil: WongReeceSoil = TABLE_II_SOIL,
-    wheel: RigidWheel = KAPVIK_WHEEL,
-    *,
-    order: int = SURROGATE_ORDER,
-    grid_points: int = SURROGATE_GRID_POINTS,
-    simpson_points: int = DEFAULT_SIMPSON_POINTS,
-) -> TerramechanicsSurrogate:
-    """The surrogate for (soil, wheel), fitted at first use and cached in memory."""
-    return fit_terramechanics_surrogate(
-        soil, wheel, order=order, grid_points=grid_points, simpson_points=simpson_points
-    )
+terramechanics_surrogate = functools.lru_cache(maxsize=8)(fit_terramechanics_surrogate)
+"""The surrogate for (soil, wheel), fitted at first use and cached in memory.
+
+:func:`fit_terramechanics_surrogate` behind an LRU cache of 8 entries: same
+arguments, and a repeated call returns the same object.
+"""
