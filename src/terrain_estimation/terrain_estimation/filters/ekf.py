@@ -21,16 +21,7 @@ from typing import Any
 import numpy as np
 
 from .base import Array, GaussianState, JacobianModel, UpdateInfo
-from .kalman import (
-    GatedFilter,
-    check_measurement,
-    check_state,
-    initial_gaussian,
-    joseph_update,
-    measurement_noise_factor,
-    process_noise_factor,
-    symmetrise,
-)
+from .kalman import ModelFilter, initial_gaussian, joseph_update, symmetrise
 
 __all__ = ["ExtendedKalmanFilter"]
 
@@ -45,73 +36,38 @@ def _check_output(name: str, value: Any, shape: tuple[int, ...]) -> Array:
 
 
 @dataclass(frozen=True, kw_only=True)
-class ExtendedKalmanFilter(GatedFilter):
-    """First-order EKF with Joseph-form update (MODELS.md A.6), gated (:class:`~.kalman.GatedFilter`)."""
+class ExtendedKalmanFilter(ModelFilter[GaussianState, JacobianModel]):
+    """First-order EKF with Joseph-form update (MODELS.md A.6), gated (:class:`~.kalman.GatedFilter`).
+
+    ``predict`` and ``update`` (:class:`~.kalman.ModelFilter`) check their
+    arguments, then run :meth:`_predict` and :meth:`_update`.
+    """
 
     def initial_state(self, x0: Any, P0: Any) -> GaussianState:
         """``GaussianState`` from a finite mean ``(n,)`` and a symmetric ``P0`` ``(n, n)``."""
         return initial_gaussian(x0, P0)
 
-    def predict(
-        self,
-        state: GaussianState,
-        model: JacobianModel,
-        u: Any,
-        dt: float,
-        *,
-        process_noise_sqrt: Any = None,
-    ) -> GaussianState:
+    def _predict(self, x: Array, P: Array, model: JacobianModel, u: Any, dt: float, L: Array) -> GaussianState:
         """Propagate mean through ``model.f`` and covariance through its Jacobian.
 
-        Args:
-            state: posterior at step k, ``x`` ``(n,)``, ``P`` ``(n, n)``.
-            model: supplies ``f``, ``transition_jacobian`` and ``process_noise_sqrt``.
-            u: input over the step, passed through to the model.
-            dt: step length (s).
-            process_noise_sqrt: ``(n, q)`` factor overriding
-                ``model.process_noise_sqrt(x, u, dt)`` for this step.
-
-        Returns:
-            The predicted state ``(x̄, P̄)``.
-
-        Raises:
-            ValueError: on wrong shapes, or non-finite model outputs.
+        ``model`` supplies ``f``, ``transition_jacobian`` and ``process_noise_sqrt``;
+        returns the predicted state ``(x̄, P̄)``.
         """
-        n = model.state_dim
-        x, P = check_state(state, n)
+        n = x.shape[0]
         x_new = _check_output("model.f", model.f(x, u, dt), (n,))
         F = _check_output("model.transition_jacobian", model.transition_jacobian(x, u, dt), (n, n))
-        L = process_noise_factor(model, x, u, dt, process_noise_sqrt, n)
         return GaussianState(x=x_new, P=symmetrise(F @ P @ F.T + L @ L.T))
 
-    def update(
-        self,
-        state: GaussianState,
-        z: Any,
-        model: JacobianModel,
-        u: Any = None,
-        *,
-        measurement_noise_sqrt: Any = None,
+    def _update(
+        self, state: GaussianState, x: Array, P: Array, zv: Array, model: JacobianModel, u: Any, Rs: Array
     ) -> tuple[GaussianState, UpdateInfo]:
         """Linearised measurement update (Joseph form), gated on the NIS.
 
-        Args:
-            state: predicted state, ``x`` ``(n,)``, ``P`` ``(n, n)``.
-            z: measurement ``(p,)``, finite.
-            model: supplies ``h``, ``measurement_jacobian``, ``measurement_noise_sqrt``.
-            u: input passed to ``h`` and its Jacobian.
-            measurement_noise_sqrt: ``(p, r)`` factor of ``R`` overriding the
-                model's for this update (noise-adaptive filters).
-
-        Returns:
-            ``(posterior, info)``; the prior itself with ``info.accepted=False``
-            when the gate rejects.
+        ``model`` supplies ``h``, ``measurement_jacobian`` and ``measurement_noise_sqrt``;
+        ``u`` is passed to ``h`` and its Jacobian.
         """
-        n = model.state_dim
-        p = model.measurement_dim
-        x, P = check_state(state, n)
-        zv = check_measurement(z, p)
-        Rs = measurement_noise_factor(model, measurement_noise_sqrt, p)
+        n = x.shape[0]
+        p = zv.shape[0]
         z_hat = _check_output("model.h", model.h(x, u), (p,))
         H = _check_output("model.measurement_jacobian", model.measurement_jacobian(x, u), (p, n))
         return joseph_update(state, x, P, zv, z_hat, H, Rs @ Rs.T, self.gate_threshold)

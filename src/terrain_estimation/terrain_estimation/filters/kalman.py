@@ -16,17 +16,28 @@ Same style as the nonlinear filters: ``predict(state, ...) -> state`` and
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar, Generic, TypeVar
 
 import numpy as np
 
-from .base import Array, GaussianState, UpdateInfo, check_square, check_vector, nis_gate
+from .base import (
+    Array,
+    GaussianState,
+    SqrtGaussianState,
+    StateSpaceModel,
+    UpdateInfo,
+    check_square,
+    check_vector,
+    nis_gate,
+)
 from .sigma_points import cholesky, solve_lower
 
 __all__ = [
     "GatedFilter",
     "KalmanFilter",
+    "ModelFilter",
     "check_measurement",
     "check_state",
     "initial_gaussian",
@@ -218,6 +229,103 @@ class GatedFilter:
 
     def __post_init__(self) -> None:
         check_gate_threshold(self.gate_threshold)
+
+
+StateT = TypeVar("StateT", GaussianState, SqrtGaussianState)
+ModelT = TypeVar("ModelT", bound=StateSpaceModel)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelFilter(GatedFilter, ABC, Generic[StateT, ModelT]):
+    """The checked entry of ``predict``/``update`` that every filter over a model shares.
+
+    The EKF, the sigma-point filters and the square-root CKF take the same
+    arguments and check them the same way (the state's shapes, the
+    measurement, the step's noise factors: the caller's override or the
+    model's); each then runs its own equations on the checked arrays,
+    :meth:`_predict` and :meth:`_update`. ``carries_factor`` says whether the
+    state carries the square-root factor ``S`` instead of ``P``.
+    """
+
+    carries_factor: ClassVar[bool] = False
+
+    def predict(
+        self,
+        state: StateT,
+        model: ModelT,
+        u: Any,
+        dt: float,
+        *,
+        process_noise_sqrt: Any = None,
+    ) -> StateT:
+        """Time update: propagate the state through ``model.f`` (the filter's :meth:`_predict`).
+
+        Args:
+            state: posterior at step k, ``x`` ``(n,)``, ``P`` (or ``S``) ``(n, n)``.
+            model: supplies ``f``, ``process_noise_sqrt`` and what the filter
+                needs besides (see its :meth:`_predict`).
+            u: input over the step, passed through to the model.
+            dt: step length (s).
+            process_noise_sqrt: ``(n, q)`` factor overriding
+                ``model.process_noise_sqrt(x, u, dt)`` for this step.
+
+        Returns:
+            The predicted state.
+
+        Raises:
+            ValueError: on wrong shapes or non-finite model outputs.
+        """
+        n = model.state_dim
+        x, P = check_state(state, n, factor=self.carries_factor)
+        L = process_noise_factor(model, x, u, dt, process_noise_sqrt, n)
+        return self._predict(x, P, model, u, dt, L)
+
+    def update(
+        self,
+        state: StateT,
+        z: Any,
+        model: ModelT,
+        u: Any = None,
+        *,
+        measurement_noise_sqrt: Any = None,
+    ) -> tuple[StateT, UpdateInfo]:
+        """Measurement update, gated on the NIS (the filter's :meth:`_update`).
+
+        Args:
+            state: predicted state, ``x`` ``(n,)``, ``P`` (or ``S``) ``(n, n)``.
+            z: measurement ``(p,)``, finite.
+            model: supplies ``h``, ``measurement_noise_sqrt`` and what the
+                filter needs besides (see its :meth:`_update`).
+            u: input passed to ``h``.
+            measurement_noise_sqrt: ``(p, r)`` factor of ``R`` overriding the
+                model's for this update (noise-adaptive filters).
+
+        Returns:
+            ``(posterior, info)``; the prior itself with ``info.accepted=False``
+            when the gate rejects.
+
+        Raises:
+            ValueError: on wrong shapes, a non-finite measurement or non-finite model outputs.
+        """
+        n = model.state_dim
+        p = model.measurement_dim
+        x, P = check_state(state, n, factor=self.carries_factor)
+        zv = check_measurement(z, p)
+        Rs = measurement_noise_factor(model, measurement_noise_sqrt, p)
+        return self._update(state, x, P, zv, model, u, Rs)
+
+    @abstractmethod
+    def _predict(self, x: Array, P: Array, model: ModelT, u: Any, dt: float, L: Array) -> StateT:
+        """:meth:`predict` on the checked mean ``x`` ``(n,)``, ``P`` (or ``S``) ``(n, n)`` and ``√Q_k`` ``L``."""
+
+    @abstractmethod
+    def _update(
+        self, state: StateT, x: Array, P: Array, zv: Array, model: ModelT, u: Any, Rs: Array
+    ) -> tuple[StateT, UpdateInfo]:
+        """:meth:`update` on the checked ``x``, ``P`` (or ``S``), measurement ``zv`` ``(p,)`` and ``√R`` ``Rs``.
+
+        ``state`` is the prior, returned itself when the gate rejects.
+        """
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -38,14 +38,7 @@ from typing import Any
 import numpy as np
 
 from .base import Array, SqrtGaussianState, StateSpaceModel, UpdateInfo
-from .kalman import (
-    GatedFilter,
-    check_measurement,
-    check_state,
-    initial_gaussian,
-    measurement_noise_factor,
-    process_noise_factor,
-)
+from .kalman import ModelFilter, initial_gaussian
 from .sigma_points import _tria_rows, cubature_points, robust_sqrt, solve_lower
 from .ukf import check_points
 
@@ -53,8 +46,14 @@ __all__ = ["SquareRootCubatureKalmanFilter"]
 
 
 @dataclass(frozen=True, kw_only=True)
-class SquareRootCubatureKalmanFilter(GatedFilter):
-    """Square-root CKF carrying ``SqrtGaussianState(x, S)`` (MODELS.md A.5), gated (:class:`~.kalman.GatedFilter`)."""
+class SquareRootCubatureKalmanFilter(ModelFilter[SqrtGaussianState, StateSpaceModel]):
+    """Square-root CKF carrying ``SqrtGaussianState(x, S)`` (MODELS.md A.5), gated (:class:`~.kalman.GatedFilter`).
+
+    ``predict`` and ``update`` (:class:`~.kalman.ModelFilter`) check their
+    arguments, then run :meth:`_predict` and :meth:`_update`.
+    """
+
+    carries_factor = True
 
     def initial_state(self, x0: Any, P0: Any) -> SqrtGaussianState:
         """``SqrtGaussianState`` from a finite mean ``(n,)`` and a symmetric ``P0``.
@@ -66,75 +65,36 @@ class SquareRootCubatureKalmanFilter(GatedFilter):
         g = initial_gaussian(x0, P0)
         return SqrtGaussianState(x=g.x, S=robust_sqrt(g.P))
 
-    def predict(
-        self,
-        state: SqrtGaussianState,
-        model: StateSpaceModel,
-        u: Any,
-        dt: float,
-        *,
-        process_noise_sqrt: Any = None,
-    ) -> SqrtGaussianState:
+    def _predict(self, x: Array, S: Array, model: StateSpaceModel, u: Any, dt: float, L: Array) -> SqrtGaussianState:
         """Time update, eqs. (14)–(18).
 
-        Args:
-            state: posterior at step k, ``x`` ``(n,)``, ``S`` ``(n, n)``.
-            model: supplies ``f`` (vectorised, ``(2n, n)`` → ``(2n, n)``) and
-                ``process_noise_sqrt`` (``√Q_k``, ``(n, q)``).
-            u: input over the step, passed through to the model.
-            dt: step length (s).
-            process_noise_sqrt: ``(n, q)`` factor overriding
-                ``model.process_noise_sqrt(x, u, dt)`` for this step.
-
-        Returns:
-            ``SqrtGaussianState(x̄, S̄)`` with ``S̄`` lower-triangular.
-
-        Raises:
-            ValueError: on wrong shapes or non-finite model outputs.
+        ``model`` supplies ``f`` (vectorised, ``(2n, n)`` → ``(2n, n)``) and
+        ``process_noise_sqrt`` (``√Q_k``, ``(n, q)``). Returns
+        ``SqrtGaussianState(x̄, S̄)`` with ``S̄`` lower-triangular.
         """
-        n = model.state_dim
-        x, S = check_state(state, n, factor=True)
-        L = process_noise_factor(model, x, u, dt, process_noise_sqrt, n)
+        n = x.shape[0]
         ps = cubature_points(n)
         X = x + ps.unit @ S.T  # (14)
         Xs = check_points("model.f", model.f(X, u, dt), 2 * n, n)  # (15)
         x_pred, S_pred = _time_update(ps.Wm, Xs, L)
         return SqrtGaussianState(x=x_pred, S=S_pred)
 
-    def update(
-        self,
-        state: SqrtGaussianState,
-        z: Any,
-        model: StateSpaceModel,
-        u: Any = None,
-        *,
-        measurement_noise_sqrt: Any = None,
+    def _update(
+        self, state: SqrtGaussianState, x: Array, S: Array, zv: Array, model: StateSpaceModel, u: Any, Rs: Array
     ) -> tuple[SqrtGaussianState, UpdateInfo]:
         """Measurement update, eqs. (19)–(28), gated on the NIS.
 
         The NIS ``‖S_z⁻¹ ν‖²`` reuses the first triangular solve of the gain
-        (26), so gating costs nothing extra.
-
-        Args:
-            state: predicted state, ``x`` ``(n,)``, ``S`` ``(n, n)``.
-            z: measurement ``(p,)``, finite.
-            model: supplies ``h`` (vectorised, ``(2n, n)`` → ``(2n, p)``) and
-                ``measurement_noise_sqrt`` (``√R``, ``(p, r)``).
-            u: input passed to ``h``.
-            measurement_noise_sqrt: ``(p, r)`` factor of ``R`` overriding the
-                model's for this update (noise-adaptive filters).
+        (26), so gating costs nothing extra. ``model`` supplies ``h``
+        (vectorised, ``(2n, n)`` → ``(2n, p)``) and ``measurement_noise_sqrt``
+        (``√R``, ``(p, r)``).
 
         Returns:
             ``(posterior, info)``; ``info.innovation_cov = S_z S_zᵀ`` (formed
             for reporting only) and ``info.extras["innovation_cov_sqrt"] = S_z``.
             On rejection the prior itself with ``info.accepted=False``.
         """
-        n = model.state_dim
-        p = model.measurement_dim
-        x, S = check_state(state, n, factor=True)
-        zv = check_measurement(z, p)
-        Rs = measurement_noise_factor(model, measurement_noise_sqrt, p)
-        nu, S_z, nis, post = self._update_core(x, S, zv, model.h, u, Rs, p)
+        nu, S_z, nis, post = self._update_core(x, S, zv, model.h, u, Rs, zv.shape[0])
         extras = {"innovation_cov_sqrt": S_z}
         info = UpdateInfo(innovation=nu, innovation_cov=S_z @ S_z.T, nis=nis, accepted=post is not None, extras=extras)
         return (state if post is None else SqrtGaussianState(x=post[0], S=post[1])), info

@@ -22,7 +22,7 @@ The prediction is also available as its parts (:meth:`~SigmaPointKalmanFilter.pr
 from __future__ import annotations
 
 import math
-from abc import ABC, abstractmethod
+from abc import abstractmethod
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,7 +30,7 @@ import numpy as np
 
 from .base import Array, GaussianState, StateSpaceModel, UpdateInfo
 from .kalman import (
-    GatedFilter,
+    ModelFilter,
     check_measurement,
     check_state,
     initial_gaussian,
@@ -106,10 +106,12 @@ class MeasurementMoments:
 
 
 @dataclass(frozen=True, kw_only=True)
-class SigmaPointKalmanFilter(GatedFilter, ABC):
+class SigmaPointKalmanFilter(ModelFilter[GaussianState, StateSpaceModel]):
     """Additive-noise sigma-point Kalman filter with full covariance, gated (:class:`~.kalman.GatedFilter`).
 
-    Subclasses choose the point set (:meth:`point_set`). ``P`` is factored
+    ``predict`` and ``update`` (:class:`~.kalman.ModelFilter`) check their
+    arguments, then run :meth:`_predict` and :meth:`_update`. Subclasses
+    choose the point set (:meth:`point_set`). ``P`` is factored
     with :func:`~.sigma_points.robust_sqrt` to draw points: Cholesky, with a
     PSD projection only if rounding has made ``P`` indefinite.
     """
@@ -135,6 +137,12 @@ class SigmaPointKalmanFilter(GatedFilter, ABC):
         n = model.state_dim
         x, P = check_state(state, n)
         L = process_noise_factor(model, x, u, dt, process_noise_sqrt, n)
+        return self._prediction(x, P, model, u, dt, L)
+
+    def _prediction(
+        self, x: Array, P: Array, model: StateSpaceModel, u: Any, dt: float, L: Array
+    ) -> SigmaPointPrediction:
+        """:meth:`propagate` on the checked ``x`` ``(n,)``, ``P`` ``(n, n)`` and ``√Q_k`` ``L`` ``(n, q)``."""
         x_new, P0 = self._propagate_points(x, P, model, u, dt)
         return SigmaPointPrediction(x=x_new, P0=P0, Q=L @ L.T)
 
@@ -152,33 +160,13 @@ class SigmaPointKalmanFilter(GatedFilter, ABC):
         D = Xp - x_new
         return x_new, symmetrise((D.T * ps.Wc) @ D)
 
-    def predict(
-        self,
-        state: GaussianState,
-        model: StateSpaceModel,
-        u: Any,
-        dt: float,
-        *,
-        process_noise_sqrt: Any = None,
-    ) -> GaussianState:
+    def _predict(self, x: Array, P: Array, model: StateSpaceModel, u: Any, dt: float, L: Array) -> GaussianState:
         """Time update: push the points through ``model.f`` (all at once).
 
-        Args:
-            state: posterior at step k, ``x`` ``(n,)``, ``P`` ``(n, n)``.
-            model: supplies ``f`` (vectorised, ``(m, n)`` → ``(m, n)``) and
-                ``process_noise_sqrt``.
-            u: input over the step, passed through to the model.
-            dt: step length (s).
-            process_noise_sqrt: ``(n, q)`` factor overriding
-                ``model.process_noise_sqrt(x, u, dt)`` for this step.
-
-        Returns:
-            ``GaussianState(x̄, P̄0 + Q_k)``.
-
-        Raises:
-            ValueError: on wrong shapes or non-finite model outputs.
+        ``model`` supplies ``f`` (vectorised, ``(m, n)`` → ``(m, n)``) and
+        ``process_noise_sqrt``. Returns ``GaussianState(x̄, P̄0 + Q_k)``.
         """
-        return self.propagate(state, model, u, dt, process_noise_sqrt=process_noise_sqrt).state()
+        return self._prediction(x, P, model, u, dt, L).state()
 
     def measurement_moments(
         self,
@@ -220,31 +208,15 @@ class SigmaPointKalmanFilter(GatedFilter, ABC):
         R = Rs @ Rs.T
         return z_hat, symmetrise(dZ_w @ dZ + R), (dZ_w @ dX).T, R
 
-    def update(
-        self,
-        state: GaussianState,
-        z: Any,
-        model: StateSpaceModel,
-        u: Any = None,
-        *,
-        measurement_noise_sqrt: Any = None,
+    def _update(
+        self, state: GaussianState, x: Array, P: Array, zv: Array, model: StateSpaceModel, u: Any, Rs: Array
     ) -> tuple[GaussianState, UpdateInfo]:
         """Measurement update, gated on the NIS ``νᵀ P_zz⁻¹ ν``.
 
-        Args:
-            state: predicted state, ``x`` ``(n,)``, ``P`` ``(n, n)``.
-            z: measurement ``(p,)``, finite.
-            model: supplies ``h`` and ``measurement_noise_sqrt``.
-            u: input passed to ``h``.
-            measurement_noise_sqrt: ``(p, r)`` factor of ``R`` overriding the
-                model's for this update (noise-adaptive filters).
-
-        Returns:
-            ``(posterior, info)``; the prior itself with ``info.accepted=False``
-            when the gate rejects.
+        ``model`` supplies ``h`` (vectorised, ``(m, n)`` → ``(m, p)``) and
+        ``measurement_noise_sqrt``; ``u`` is passed to ``h``.
         """
-        posterior, info, _ = self.update_with_moments(state, z, model, u, measurement_noise_sqrt=measurement_noise_sqrt)
-        return posterior, info
+        return self._moments_update(state, zv, MeasurementMoments(*self._moments(x, P, Rs, model, u)))
 
     def update_with_moments(
         self,
@@ -262,10 +234,16 @@ class SigmaPointKalmanFilter(GatedFilter, ABC):
         """
         zv = check_measurement(z, model.measurement_dim)
         mm = self.measurement_moments(state, model, u, measurement_noise_sqrt=measurement_noise_sqrt)
+        return (*self._moments_update(state, zv, mm), mm)
+
+    def _moments_update(
+        self, state: GaussianState, zv: Array, mm: MeasurementMoments
+    ) -> tuple[GaussianState, UpdateInfo]:
+        """The gated update of ``state`` by the checked measurement ``zv`` from its moments ``mm``."""
         nu = zv - mm.z_hat
         post, nis = self._gain_update(state.x, state.P, nu, mm.P_zz, mm.P_xz)
         info = UpdateInfo(innovation=nu, innovation_cov=mm.P_zz, nis=nis, accepted=post is not None)
-        return (state if post is None else GaussianState(x=post[0], P=post[1])), info, mm
+        return (state if post is None else GaussianState(x=post[0], P=post[1])), info
 
     def _gain_update(
         self, x: Any, P: Any, nu: Array, P_zz: Array, P_xz: Array
