@@ -219,12 +219,9 @@ class _Compiler:
         if isinstance(value_type, (rosidl.UnboundedString, rosidl.BoundedString)):
             self.align(4)
             self.flush()
-            self.emit(f"{target}, o = _strings(b, o, {n})")
-            self.forget(1)
+            self.strings(target, n)
             return
-        if not isinstance(value_type, rosidl.BasicType):
-            raise _UnsupportedError("array of messages")
-        code, size, _, dtype = self.basic(value_type)
+        code, size, _, dtype = self.element(value_type, "array")
         if not dtype:
             raise _UnsupportedError("array of booleans")
         self.align(size)
@@ -235,15 +232,23 @@ class _Compiler:
         self.emit(f"o += {n} * {size}")
         self.res = (self.res + int(n) * size) % self.mod
 
+    def strings(self, target: str, n: str) -> None:
+        """``n`` strings of an array or a sequence (the offset at them): a list in rclpy."""
+        self.emit(f"{target}, o = _strings(b, o, {n})")
+        self.forget(1)
+
+    def element(self, value_type: Any, container: str) -> tuple[str, int, str, str]:
+        """:meth:`basic` of the element type of an array or a sequence (``container``): messages are refused."""
+        if not isinstance(value_type, rosidl.BasicType):
+            raise _UnsupportedError(f"{container} of messages")
+        return self.basic(value_type)
+
     def sequence(self, target: str, value_type: Any, n: str) -> None:
         """A sequence (count just read into ``n``): numeric ones are array.array in rclpy."""
         if isinstance(value_type, (rosidl.UnboundedString, rosidl.BoundedString)):
-            self.emit(f"{target}, o = _strings(b, o, {n})")
-            self.forget(1)
+            self.strings(target, n)
             return
-        if not isinstance(value_type, rosidl.BasicType):
-            raise _UnsupportedError("sequence of messages")
-        code, size, typecode, _ = self.basic(value_type)
+        code, size, typecode, _ = self.element(value_type, "sequence")
         if not typecode:
             raise _UnsupportedError("sequence of booleans")
         # An empty sequence has no element to align (Fast CDR writes no padding for it).

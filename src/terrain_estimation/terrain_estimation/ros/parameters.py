@@ -373,9 +373,14 @@ def float_value(values: Mapping[str, ParamValue], name: str) -> float:
     return float(values[name])
 
 
-def float_fields(values: Mapping[str, ParamValue], prefix: str, names: Iterable[str]) -> dict[str, Any]:
-    """``{name: float(values["<prefix>.<name>"])}``: dataclass fields from validated parameters."""
-    return {name: float(values[f"{prefix}.{name}"]) for name in names}
+def float_fields(
+    values: Mapping[str, ParamValue], prefix: str, names: Iterable[str], *, sep: str = "."
+) -> dict[str, Any]:
+    """``{name: float(values["<prefix>.<name>"])}``: dataclass fields from validated parameters.
+
+    ``sep`` joins the prefix and the field (``"_"``: parameters named ``<prefix>_<name>``).
+    """
+    return {name: float(values[f"{prefix}{sep}{name}"]) for name in names}
 
 
 def fixed_floats(values: Mapping[str, ParamValue], name: str, size: int, what: str = "") -> tuple[float, ...]:

@@ -32,6 +32,7 @@ from terrain_estimation.ros.parameters import (
     divergence_specs,
     field_specs,
     fixed_floats,
+    float_fields,
     input_specs,
     kind_specs,
 )
@@ -629,7 +630,7 @@ def vehicle_params(values: Mapping[str, ParamValue]) -> RoverParams:
     """
     offset = fixed_floats(values, "vehicle.bogie_cm_offset", 2)
     return RoverParams(
-        **{name: _f(values, f"vehicle.{name}") for name, *_ in _VEHICLE_FIELDS},
+        **float_fields(values, "vehicle", (name for name, *_ in _VEHICLE_FIELDS)),
         bogie_cm_offset=(offset[0], offset[1]),
         gravity=_f(values, "vehicle.gravity"),
     )
@@ -684,14 +685,14 @@ def estimator_config(values: Mapping[str, ParamValue]) -> RoverEstimatorConfig:
         ValueError: inconsistent values (a list of the wrong length, a rate above the sensor rate …).
     """
     gate = _f(values, "filter.gate_threshold")
-    process = {name: _f(values, f"process_noise.{name}") for name, *_ in _PROCESS_FIELDS}
+    process = float_fields(values, "process_noise", (name for name, *_ in _PROCESS_FIELDS))
     return RoverEstimatorConfig(
         rover=vehicle_params(values),
         load_cell_axes=int(values["estimator.load_cell_axes"]),
         sensor_rate_hz=_f(values, "estimator.sensor_rate"),
         estimator_rate_hz=_f(values, "estimator.rate"),
-        sensor_noise=SensorNoise(**{name: _f(values, f"noise.{name}") for name, *_ in _NOISE_FIELDS}),
-        floors=MeasurementErrorFloors(**{name: _f(values, f"floors.{name}") for name, *_ in _FLOOR_FIELDS}),
+        sensor_noise=SensorNoise(**float_fields(values, "noise", (name for name, *_ in _NOISE_FIELDS))),
+        floors=MeasurementErrorFloors(**float_fields(values, "floors", (name for name, *_ in _FLOOR_FIELDS))),
         general_process_noise=GeneralProcessNoise(**{k: v for k, v in process.items() if k in _GENERAL_PROCESS}),
         wheel_force_process_noise=WheelForceProcessNoise(
             **{k: v for k, v in process.items() if k not in _GENERAL_PROCESS}
@@ -713,17 +714,14 @@ def estimator_config(values: Mapping[str, ParamValue]) -> RoverEstimatorConfig:
         max_latency_s=_f(values, "estimator.max_latency"),
         max_gap_s=_f(values, "estimator.max_gap"),
         max_consecutive_failures=int(values["estimator.max_consecutive_failures"]),
-        ukf_alpha=_f(values, "filter.ukf_alpha"),
-        ukf_beta=_f(values, "filter.ukf_beta"),
-        ukf_kappa=_f(values, "filter.ukf_kappa"),
+        **float_fields(values, "filter", ("ukf_alpha", "ukf_beta", "ukf_kappa", "split_traction_slope")),
         gate_threshold=gate if gate > 0.0 else None,
         divergence=divergence_config(values),
         noise_matching=NoiseMatchingConfig(
             enabled=bool(values["filter.noise_matching"]),
-            forgetting=_f(values, "filter.noise_matching_forgetting"),
-            r_forgetting=_f(values, "filter.noise_matching_r_forgetting"),
-            floor=_f(values, "filter.noise_matching_floor"),
-            ceiling=_f(values, "filter.noise_matching_ceiling"),
+            **float_fields(
+                values, "filter.noise_matching", ("forgetting", "r_forgetting", "floor", "ceiling"), sep="_"
+            ),
         ),
         contact_angle_bias=ContactAngleBias(
             enabled=_f(values, "filter.contact_angle_bias") > 0.0
@@ -735,13 +733,10 @@ def estimator_config(values: Mapping[str, ParamValue]) -> RoverEstimatorConfig:
             path_error=bool(values["filter.contact_angle_path_error"]),
             sinkage_relative_error=_f(values, "filter.contact_angle_sinkage_error"),
         ),
-        split_traction_slope=_f(values, "filter.split_traction_slope"),
         settle_steps=int(values["estimator.settle_steps"]),
         sinkage=SinkageSoil(
             enabled=bool(values["estimator.sinkage"]),
-            sinkage_exponent=_f(values, "soil.sinkage_exponent"),
-            cohesive_modulus=_f(values, "soil.cohesive_modulus"),
-            frictional_modulus=_f(values, "soil.frictional_modulus"),
+            **float_fields(values, "soil", ("sinkage_exponent", "cohesive_modulus", "frictional_modulus")),
         ),
     )
 

@@ -92,22 +92,8 @@ def estimate_to_state_msg(e: SkidSteerEstimate, frame_id: str) -> SkidSteerState
     if _FAST_MESSAGES:
         return _state_msg(e, stamp, frame_id)
     msg = SkidSteerState(
-        vx=e.vx,
-        vx_variance=e.vx_variance,
-        vy=e.vy,
-        vy_variance=e.vy_variance,
-        yaw_rate=e.yaw_rate,
-        yaw_rate_variance=e.yaw_rate_variance,
-        body_sideslip=e.body_sideslip,
-        body_sideslip_variance=e.body_sideslip_variance,
-        slip_left=e.slip_left,
-        slip_right=e.slip_right,
+        **{name: getattr(e, name) for name in _STATE_FIELDS},
         tire_sideslip=np.array(e.tire_sideslip),  # float64: taken as is, no per-element check
-        icr_x=e.icr_x,
-        icr_y=e.icr_y,
-        icr_valid=e.icr_valid,
-        fading_factor=e.fading_factor,
-        noise_scale=e.noise_scale,
     )
     msg.header.stamp = stamp
     msg.header.frame_id = frame_id
@@ -203,6 +189,10 @@ _SLOTS: dict[type, tuple[str, ...]] = {
         "_noise_scale",
     ),
 }
+
+
+#: The fields of SkidSteerState but its header and tire_sideslip: each is the estimate's attribute of that name.
+_STATE_FIELDS = tuple(slot[1:] for slot in _SLOTS[SkidSteerState] if slot not in ("_header", "_tire_sideslip"))
 
 
 def _fast_messages_apply() -> bool:

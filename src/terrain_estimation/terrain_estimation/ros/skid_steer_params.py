@@ -25,7 +25,14 @@ from terrain_estimation.filters.noise_adaptation import InnovationNoiseConfig
 from terrain_estimation.models.skid_steer import SkidSteerParams
 from terrain_estimation.models.skid_steer_scales import GRAVITY_NAMES, RESISTANCE_NAME, SCALE_NAMES, TireScaleConfig
 from terrain_estimation.params import ParamSpec, ParamValue, default_config_path, load_parameter_file
-from terrain_estimation.ros.parameters import divergence_config, divergence_specs, fixed_floats, input_specs, kind_specs
+from terrain_estimation.ros.parameters import (
+    divergence_config,
+    divergence_specs,
+    fixed_floats,
+    float_fields,
+    input_specs,
+    kind_specs,
+)
 from terrain_estimation.ros.parameters import float_value as _f
 
 __all__ = [
@@ -487,6 +494,27 @@ def specs_for(kind: str = "skid_steer") -> tuple[ParamSpec, ...]:
 PARAMETERS = specs_for()
 
 
+#: Float fields read from the parameter of the same name: SkidSteerParams (every ``vehicle.*`` parameter that
+#: names one of its fields, axle_x aside), TireScaleConfig (``tire_scales.*``) and InnovationNoiseConfig
+#: (``adaptive_noise.*``).
+_VEHICLE_FLOATS = tuple(
+    name
+    for spec in VEHICLE_SPECS_SKID_STEER
+    if (name := spec.name.removeprefix("vehicle.")) in SkidSteerParams.__dataclass_fields__ and name != "axle_x"
+)
+_TIRE_SCALE_FLOATS = (
+    "walk_std",
+    "initial_std",
+    "resistance_nominal",
+    "resistance_std",
+    "resistance_max",
+    "resistance_speed",
+    "slope_std",
+    "slope_max",
+)
+_NOISE_ADAPTATION_FLOATS = ("r_forgetting", "q_forgetting", "r_floor", "r_ceiling", "q_floor", "q_ceiling")
+
+
 def _triple(values: Mapping[str, ParamValue], name: str) -> tuple[float, float, float]:
     v = fixed_floats(values, name, 3, "[vx, vy, r] order")
     return v[0], v[1], v[2]
@@ -501,19 +529,7 @@ def vehicle_params(values: Mapping[str, ParamValue]) -> SkidSteerParams:
     axles = [float(v) for v in values.get("vehicle.axle_x", [0.0])]
     return SkidSteerParams(
         axle_x=tuple(axles) if len(axles) >= 2 else None,
-        mass=_f(values, "vehicle.mass"),
-        yaw_inertia=_f(values, "vehicle.yaw_inertia"),
-        axle_spacing_front=_f(values, "vehicle.axle_spacing_front"),
-        axle_spacing_rear=_f(values, "vehicle.axle_spacing_rear"),
-        cm_ahead_of_middle_axle=_f(values, "vehicle.cm_ahead_of_middle_axle"),
-        track=_f(values, "vehicle.track"),
-        cg_height=_f(values, "vehicle.cg_height"),
-        wheel_radius=_f(values, "vehicle.wheel_radius"),
-        transmission_ratio=_f(values, "vehicle.transmission_ratio"),
-        longitudinal_stiffness=_f(values, "vehicle.longitudinal_stiffness"),
-        cornering_stiffness=_f(values, "vehicle.cornering_stiffness"),
-        friction=_f(values, "vehicle.friction"),
-        gravity=_f(values, "vehicle.gravity"),
+        **float_fields(values, "vehicle", _VEHICLE_FLOATS),
     )
 
 
@@ -526,45 +542,29 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SkidSteerEstimatorConf
     gate = _f(values, "filter.gate_threshold")
     gamma_th = _f(values, "strong_tracking.gamma_th")
     strong = StrongTrackingConfig(
-        rho=_f(values, "strong_tracking.rho"),
-        beta_w=_f(values, "strong_tracking.beta_w"),
         gamma_th=gamma_th if gamma_th > 0.0 else None,
-        lambda_max=_f(values, "strong_tracking.lambda_max"),
         criterion=None if values["strong_tracking.criterion"] == "auto" else values["strong_tracking.criterion"],
-        probability=_f(values, "strong_tracking.probability"),
+        **float_fields(values, "strong_tracking", ("rho", "beta_w", "lambda_max", "probability")),
     )
     scales = TireScaleConfig(
         states=tuple(name for name in (*SCALE_NAMES, RESISTANCE_NAME) if bool(values[f"tire_scales.{name}"]))
         + (GRAVITY_NAMES if bool(values["tire_scales.ground_slope"]) else ()),
-        walk_std=_f(values, "tire_scales.walk_std"),
-        initial_std=_f(values, "tire_scales.initial_std"),
         min_scale=_f(values, "tire_scales.min"),
         max_scale=_f(values, "tire_scales.max"),
         reversion_time_s=_f(values, "tire_scales.reversion_time"),
-        resistance_nominal=_f(values, "tire_scales.resistance_nominal"),
-        resistance_std=_f(values, "tire_scales.resistance_std"),
         resistance_time_s=_f(values, "tire_scales.resistance_time"),
-        resistance_max=_f(values, "tire_scales.resistance_max"),
-        resistance_speed=_f(values, "tire_scales.resistance_speed"),
-        slope_std=_f(values, "tire_scales.slope_std"),
         slope_time_s=_f(values, "tire_scales.slope_time"),
-        slope_max=_f(values, "tire_scales.slope_max"),
+        **float_fields(values, "tire_scales", _TIRE_SCALE_FLOATS),
     )
     consider = ConsiderConfig(
         parameters=tuple(name for name in CONSIDER_NAMES if bool(values[f"consider.{name}"])),
-        scale_std=_f(values, "consider.scale_std"),
-        friction_std=_f(values, "consider.friction_std"),
-        resistance_rms=_f(values, "consider.resistance_rms"),
+        **float_fields(values, "consider", ("scale_std", "friction_std", "resistance_rms")),
     )
     zupt = ZuptConfig(
         enabled=bool(values["zupt.enabled"]),
-        wheel_speed=_f(values, "zupt.wheel_speed"),
         window_s=_f(values, "zupt.window"),
         min_samples=int(values["zupt.min_samples"]),
-        accel_std=_f(values, "zupt.accel_std"),
-        gyro_std=_f(values, "zupt.gyro_std"),
-        velocity_std=_f(values, "zupt.velocity_std"),
-        yaw_rate_std=_f(values, "zupt.yaw_rate_std"),
+        **float_fields(values, "zupt", ("wheel_speed", "accel_std", "gyro_std", "velocity_std", "yaw_rate_std")),
     )
     max_age = _f(values, "estimator.max_wheel_speed_age")
     return SkidSteerEstimatorConfig(
@@ -573,35 +573,23 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SkidSteerEstimatorConf
         model=values["filter.model"],
         tire_scales=scales,
         consider=consider,
-        process_accel_std=_f(values, "kinematic.process_accel_std"),
-        tire_model_std=_f(values, "kinematic.tire_model_std"),
-        tire_moment_std=_f(values, "kinematic.tire_moment_std"),
-        ukf_alpha=_f(values, "filter.ukf_alpha"),
-        ukf_beta=_f(values, "filter.ukf_beta"),
-        ukf_kappa=_f(values, "filter.ukf_kappa"),
+        **float_fields(values, "kinematic", ("process_accel_std", "tire_model_std", "tire_moment_std")),
+        **float_fields(values, "filter", ("ukf_alpha", "ukf_beta", "ukf_kappa")),
         gate_threshold=gate if gate > 0.0 else None,
         strong_tracking=strong,
-        k_q=_f(values, "adaptive_noise.k_q"),
-        k_r=_f(values, "adaptive_noise.k_r"),
+        **float_fields(values, "adaptive_noise", ("k_q", "k_r")),
         noise_adaptation=InnovationNoiseConfig(
             adapt_r=bool(values["adaptive_noise.adapt_r"]),
             adapt_q=bool(values["adaptive_noise.adapt_q"]),
-            r_forgetting=_f(values, "adaptive_noise.r_forgetting"),
-            q_forgetting=_f(values, "adaptive_noise.q_forgetting"),
-            r_floor=_f(values, "adaptive_noise.r_floor"),
-            r_ceiling=_f(values, "adaptive_noise.r_ceiling"),
-            q_floor=_f(values, "adaptive_noise.q_floor"),
-            q_ceiling=_f(values, "adaptive_noise.q_ceiling"),
+            **float_fields(values, "adaptive_noise", _NOISE_ADAPTATION_FLOATS),
         ),
         q0_diag=_triple(values, "filter.q0_diag"),
         r0_diag=_triple(values, "filter.r0_diag"),
         p0_diag=_triple(values, "filter.p0_diag"),
         accel_cutoff_hz=_f(values, "estimator.accel_cutoff"),
-        min_yaw_rate=_f(values, "estimator.min_yaw_rate"),
-        min_sideslip_speed=_f(values, "estimator.min_sideslip_speed"),
         max_wheel_speed_age_s=max_age if max_age > 0.0 else None,
-        wheel_speed_age_periods=_f(values, "estimator.wheel_speed_age_periods"),
         min_wheel_speed_age_s=_f(values, "estimator.min_wheel_speed_age"),
+        **float_fields(values, "estimator", ("min_yaw_rate", "min_sideslip_speed", "wheel_speed_age_periods")),
         wheel_speed_interpolation=values["estimator.wheel_speed_interpolation"],
         wheel_speed_wait_s=_f(values, "estimator.wheel_speed_wait"),
         max_step_s=_f(values, "estimator.max_step"),

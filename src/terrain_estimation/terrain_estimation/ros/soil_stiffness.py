@@ -24,6 +24,7 @@ import math
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
+from operator import attrgetter
 from typing import Any
 
 from builtin_interfaces.msg import Time
@@ -45,6 +46,7 @@ from terrain_estimation.ros.parameters import (
     divergence_config,
     divergence_errors,
     divergence_specs,
+    float_fields,
     input_frame,
     input_specs,
     namespaced_frame,
@@ -413,6 +415,23 @@ PROFILE_GAPPY_FRACTION_WARN = 0.05
 """Diagnostics turn WARN when more than this fraction of the window's steps lost profile samples."""
 
 
+#: Float fields of SoilStiffnessEstimatorConfig read from the ``estimator.*`` parameter of the same name.
+_ESTIMATOR_FLOATS = (
+    "gravity",
+    "convergence_rel_std",
+    "class_log_std",
+    "unknown_weight",
+    "change_drift",
+    "change_threshold",
+    "change_clip",
+    "change_reopen_scale",
+    "change_jump_gain",
+    "change_ktot_std_frac",
+    "change_log_ks_std",
+    "profile_noise_std",
+)
+
+
 def estimator_config(values: Mapping[str, ParamValue]) -> SoilStiffnessEstimatorConfig:
     """The core estimator's configuration from validated parameter values.
 
@@ -479,35 +498,21 @@ def estimator_config(values: Mapping[str, ParamValue]) -> SoilStiffnessEstimator
         substep_rate_hz=_f(values, "filter.substep_rate"),
         k_tot0=k_tot0 if k_tot0 > 0 else None,
         p0_diag=p0_diag,
-        gravity=_f(values, "estimator.gravity"),
-        convergence_rel_std=_f(values, "estimator.convergence_rel_std"),
         gate_threshold=gate if gate > 0 else None,
         divergence=divergence,
-        class_log_std=_f(values, "estimator.class_log_std"),
-        unknown_weight=_f(values, "estimator.unknown_weight"),
-        change_drift=_f(values, "estimator.change_drift"),
-        change_threshold=_f(values, "estimator.change_threshold"),
-        change_clip=_f(values, "estimator.change_clip"),
-        change_reopen_scale=_f(values, "estimator.change_reopen_scale"),
-        change_jump_gain=_f(values, "estimator.change_jump_gain"),
-        change_ktot_std_frac=_f(values, "estimator.change_ktot_std_frac"),
-        change_log_ks_std=_f(values, "estimator.change_log_ks_std"),
+        **float_fields(values, "estimator", _ESTIMATOR_FLOATS),
         profile_smoothing_s=_f(values, "estimator.profile_smoothing"),
         profile_max_gap_s=_f(values, "estimator.profile_max_gap"),
         max_wait_s=_f(values, "estimator.max_wait"),
         max_extrapolation_s=_f(values, "estimator.max_extrapolation"),
         max_step_s=_f(values, "estimator.max_step"),
-        profile_noise_std=_f(values, "estimator.profile_noise_std"),
         hdot_window_m=_f(values, "estimator.hdot_window"),
         road_input=values["estimator.road_input"],
         road=RoadInputParams(
             iso_class=str(values["estimator.road_class"]),
-            gd_n0=_f(values, "estimator.road_gd_n0"),
-            band_min=_f(values, "estimator.road_band_min"),
-            band_max=_f(values, "estimator.road_band_max"),
-            speed=_f(values, "estimator.road_speed"),
             memory_s=_f(values, "estimator.road_memory"),
             allow_lrv=bool(values["estimator.road_allow_lrv"]),
+            **float_fields(values, "estimator.road", ("gd_n0", "band_min", "band_max", "speed"), sep="_"),
         ),
         **vehicle,
     )
@@ -542,13 +547,19 @@ def estimate_to_msg(estimate: SoilStiffnessEstimate, frame_id: str) -> SoilStiff
     return msg
 
 
+#: The fields of SoilStiffness after its header, in slot order: each is the estimate's attribute of that name
+#: (:func:`estimate_to_msg` writes them one by one: a loop over them would more than double its cost).
+_MSG_FIELDS = tuple(
+    "k_s k_s_variance k_tot k_tot_variance terrain_class class_confidence converged soil_change_detected nis".split()
+)
+_MSG_SLOTS = tuple(f"_{name}" for name in _MSG_FIELDS)
+_msg_values = attrgetter(*_MSG_FIELDS)
+
 _new = object.__new__
 #: :func:`estimate_to_msg` fills the slots itself: rclpy's field checks are off and the classes have the slots it fills.
 _DIRECT_OUTPUT = (
     not SoilStiffness()._check_fields
-    and " ".join(SoilStiffness.__slots__)
-    == "_header _k_s _k_s_variance _k_tot _k_tot_variance _terrain_class _class_confidence _converged"
-    " _soil_change_detected _nis _check_fields"
+    and tuple(SoilStiffness.__slots__) == ("_header", *_MSG_SLOTS, "_check_fields")
     and list(Header.__slots__) == ["_stamp", "_frame_id", "_check_fields"]
     and list(Time.__slots__) == ["_sec", "_nanosec", "_check_fields"]
 )
@@ -556,17 +567,7 @@ _DIRECT_OUTPUT = (
 
 def _estimate_to_msg_checked(estimate: SoilStiffnessEstimate, frame_id: str) -> SoilStiffness:
     """:func:`estimate_to_msg` through the message's constructor and setters."""
-    msg = SoilStiffness(
-        k_s=estimate.k_s,
-        k_s_variance=estimate.k_s_variance,
-        k_tot=estimate.k_tot,
-        k_tot_variance=estimate.k_tot_variance,
-        terrain_class=estimate.terrain_class,
-        class_confidence=estimate.class_confidence,
-        converged=estimate.converged,
-        soil_change_detected=estimate.soil_change_detected,
-        nis=estimate.nis,
-    )
+    msg = SoilStiffness(**dict(zip(_MSG_FIELDS, _msg_values(estimate), strict=True)))
     msg.header.stamp = sec_to_stamp(estimate.t)
     msg.header.frame_id = frame_id
     return msg

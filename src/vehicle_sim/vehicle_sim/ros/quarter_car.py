@@ -163,6 +163,24 @@ EFFECT_SPECS_TWO_DOF: tuple[ParamSpec, ...] = (
 )
 
 
+#: Numeric fields of QuarterCarEffects set from ``effects.<field>``, 0 (off) when not declared.
+_EFFECT_NUMBERS = (
+    "accel_bias_body",
+    "accel_bias_wheel",
+    "accel_scale_body",
+    "accel_scale_wheel",
+    "sensor_delay",
+    "sensor_delay_body",
+    "sensor_delay_wheel",
+    "sensor_delay_profile",
+    "soil_exponent",
+    "suspension_friction",
+    "tire_damping",
+    "tire_contact_length",
+    "sprung_mass_change",
+)
+
+
 def make_effects(values: Mapping[str, ParamValue]) -> QuarterCarEffects:
     """The effects from parameter values; the 2-DOF-only ones default to 0 when absent (LRV)."""
 
@@ -170,21 +188,9 @@ def make_effects(values: Mapping[str, ParamValue]) -> QuarterCarEffects:
         return float(values.get(f"effects.{name}", 0.0))
 
     return QuarterCarEffects(
-        accel_bias_body=number("accel_bias_body"),
-        accel_bias_wheel=number("accel_bias_wheel"),
-        accel_scale_body=number("accel_scale_body"),
-        accel_scale_wheel=number("accel_scale_wheel"),
-        sensor_delay=number("sensor_delay"),
-        sensor_delay_body=number("sensor_delay_body"),
-        sensor_delay_wheel=number("sensor_delay_wheel"),
-        sensor_delay_profile=number("sensor_delay_profile"),
-        soil_exponent=number("soil_exponent"),
         soil_origin_ratio=float(values.get("effects.soil_origin_ratio", 1.0)),
         wheel_liftoff=bool(values.get("effects.wheel_liftoff", False)),
-        suspension_friction=number("suspension_friction"),
-        tire_damping=number("tire_damping"),
-        tire_contact_length=number("tire_contact_length"),
-        sprung_mass_change=number("sprung_mass_change"),
+        **{name: number(name) for name in _EFFECT_NUMBERS},
     )
 
 

@@ -346,6 +346,19 @@ SCENARIO_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
+#: Numeric fields of RoverEffects / RoverScenario set from ``effects.<field>`` / ``plant.<field>``.
+_EFFECT_FLOATS = (
+    "load_cell_crosstalk",
+    "imu_gyro_bias",
+    "sensor_delay",
+    "slip_sinkage_coefficient",
+    "grouser_height",
+    "path_undulation_amplitude",
+    "path_undulation_wavelength",
+)
+_PLANT_FLOATS = ("baumgarte_alpha", "baumgarte_beta", "integration_step", "slip_stencil", "sinkage_loading_time")
+
+
 def make_scenario(values: Mapping[str, ParamValue]) -> RoverScenario:
     """The plant's scenario from validated parameter values.
 
@@ -370,14 +383,8 @@ def make_scenario(values: Mapping[str, ParamValue]) -> RoverScenario:
     accel = fixed_floats(values, "effects.imu_accel_bias", 2, "x, z")
     effects = RoverEffects(
         load_cell_bias=(bias[0], bias[1], bias[2]),
-        load_cell_crosstalk=_f(values, "effects.load_cell_crosstalk"),
         imu_accel_bias=(accel[0], accel[1]),
-        imu_gyro_bias=_f(values, "effects.imu_gyro_bias"),
-        sensor_delay=_f(values, "effects.sensor_delay"),
-        slip_sinkage_coefficient=_f(values, "effects.slip_sinkage_coefficient"),
-        grouser_height=_f(values, "effects.grouser_height"),
-        path_undulation_amplitude=_f(values, "effects.path_undulation_amplitude"),
-        path_undulation_wavelength=_f(values, "effects.path_undulation_wavelength"),
+        **float_fields(values, "effects", _EFFECT_FLOATS),
         **changed,
     )
     duration = _f(values, "scenario.duration")
@@ -395,14 +402,10 @@ def make_scenario(values: Mapping[str, ParamValue]) -> RoverScenario:
             quantise=bool(values["sensors.quantise"]),
         ),
         effects=effects,
-        baumgarte_alpha=_f(values, "plant.baumgarte_alpha"),
-        baumgarte_beta=_f(values, "plant.baumgarte_beta"),
-        integration_step=_f(values, "plant.integration_step"),
-        slip_stencil=_f(values, "plant.slip_stencil"),
+        **float_fields(values, "plant", _PLANT_FLOATS),
         start_x=_f(values, "scenario.start_x"),
         simpson_points=int(values["plant.simpson_points"]),
         wheel_sinkage=bool(values["plant.wheel_sinkage"]),
-        sinkage_loading_time=_f(values, "plant.sinkage_loading_time"),
     )
 
 
