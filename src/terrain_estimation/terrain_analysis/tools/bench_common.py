@@ -1,7 +1,8 @@
 """What every section of the benchmark (:mod:`terrain_analysis.tools.bench`) shares.
 
 The run's size (:class:`BenchConfig`), the machine's description, percentiles of per-step times, a bag's
-duration, and the speed rows (simulated or recorded seconds over wall seconds) with their table.
+duration, the speed rows (simulated or recorded seconds over wall seconds) with their table, and a row measured
+in a fresh process (:func:`run_in_fresh_process`).
 """
 
 from __future__ import annotations
@@ -10,9 +11,10 @@ import argparse
 import dataclasses
 import json
 import math
+import multiprocessing
 import os
 import platform
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +29,7 @@ __all__ = [
     "bag_duration_s",
     "machine_info",
     "percentiles_us",
+    "run_in_fresh_process",
     "speed_fields",
     "speed_table",
 ]
@@ -165,3 +168,32 @@ def write_json(path: str | os.PathLike[str], figures: Any, *, overwrite: bool = 
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(figures, indent=2) + "\n")
     return out
+
+
+def _fresh_child(conn: Any, fn: Callable[..., dict[str, Any]], args: tuple[Any, ...], error_key: str) -> None:
+    try:
+        conn.send(fn(*args))
+    except Exception as exc:  # a bench row, not a crash
+        conn.send({error_key: f"{type(exc).__name__}: {exc}"})
+    finally:
+        conn.close()
+
+
+def run_in_fresh_process(
+    fn: Callable[..., dict[str, Any]], args: tuple[Any, ...], *, error_key: str, what: str
+) -> dict[str, Any]:
+    """The row ``fn(*args)`` computed in a fresh (spawned) process: nothing of this process's imports, caches or
+    heap in its figures. ``fn`` (module level, picklable, as its arguments) returns the row; where it raises, the
+    row is ``{error_key: "<exception type>: <message>"}``, and where the process dies, ``{error_key: "the <what>
+    process died (exit code <n>)"}``."""
+    ctx = multiprocessing.get_context("spawn")
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_fresh_child, args=(child, fn, args, error_key))
+    proc.start()
+    child.close()
+    try:
+        row: dict[str, Any] = parent.recv()
+    except EOFError:
+        row = {error_key: f"the {what} process died (exit code {proc.exitcode})"}
+    proc.join()
+    return row

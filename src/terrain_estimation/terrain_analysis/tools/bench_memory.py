@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import multiprocessing
 import os
 import re
 import shutil
@@ -50,7 +49,13 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from terrain_analysis.tools.bench_common import add_json_arguments, machine_info, parse_bench_arguments, write_json
+from terrain_analysis.tools.bench_common import (
+    add_json_arguments,
+    machine_info,
+    parse_bench_arguments,
+    run_in_fresh_process,
+    write_json,
+)
 from terrain_estimation.cli import cli_main
 
 __all__ = [
@@ -361,27 +366,9 @@ def _sites(after: Any, before: Any, top: int = 6) -> list[tuple[str, float]]:
     return sorted(by_site.items(), key=lambda kv: -kv[1])[:top]
 
 
-def _trace_child(conn: Any, bag: str, warm: str, vehicle: str, out: str) -> None:
-    try:
-        conn.send(_traced(bag, warm, vehicle, out))
-    except Exception as exc:  # a bench row, not a crash
-        conn.send({"error": f"{type(exc).__name__}: {exc}"})
-    finally:
-        conn.close()
-
-
 def trace_estimate(bag: Path, warm: Path, vehicle: str, out: Path) -> dict[str, Any]:
     """:func:`_traced` in a fresh (spawned) process."""
-    ctx = multiprocessing.get_context("spawn")
-    parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_trace_child, args=(child, str(bag), str(warm), vehicle, str(out)))
-    proc.start()
-    child.close()
-    try:
-        row: dict[str, Any] = parent.recv()
-    except EOFError:
-        row = {"error": f"the traced process died (exit code {proc.exitcode})"}
-    proc.join()
+    row = run_in_fresh_process(_traced, (str(bag), str(warm), vehicle, str(out)), error_key="error", what="traced")
     shutil.rmtree(out, ignore_errors=True)
     return row
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import multiprocessing
 import sys
 import tempfile
 import time
@@ -36,6 +35,7 @@ from terrain_analysis.tools.bench_common import (
     add_json_arguments,
     machine_info,
     parse_bench_arguments,
+    run_in_fresh_process,
     write_json,
 )
 from terrain_estimation.cli import cli_main
@@ -202,36 +202,22 @@ def _diagnose_metered(bag: str, vehicle: str, out: str | None) -> dict[str, Any]
     }
 
 
-def _child(conn: Any, bag: str, vehicle: str, warm: str | None, out: str | None) -> None:
-    try:
-        if warm is not None:  # untimed: numba caches, lazy imports, first-call costs
-            from terrain_analysis.sim2real.diagnose import diagnose
-            from terrain_analysis.sim2real.fitting import AttributionSettings
+def _warm_and_diagnose(bag: str, vehicle: str, warm: str | None, out: str | None) -> dict[str, Any]:
+    """The row of one bag after an untimed warm-up diagnosis of ``warm`` (none: no warm-up)."""
+    if warm is not None:  # untimed: numba caches, lazy imports, first-call costs
+        from terrain_analysis.sim2real.diagnose import diagnose
+        from terrain_analysis.sim2real.fitting import AttributionSettings
 
-            # Every stage and every candidate's replay once, with almost no optimising (a tenth of the cost).
-            light = AttributionSettings(max_nfev=2, grid_points=0, max_starts=1, cross_fit=0, stability_regimes=0)
-            with contextlib.suppress(Exception):  # a warm-up that fails still warmed what it ran
-                diagnose(warm, vehicle, settings=light)
-        conn.send(_diagnose_metered(bag, vehicle, out))
-    except Exception as exc:  # a bench row, not a crash
-        conn.send({"skipped": f"{type(exc).__name__}: {exc}"})
-    finally:
-        conn.close()
+        # Every stage and every candidate's replay once, with almost no optimising (a tenth of the cost).
+        light = AttributionSettings(max_nfev=2, grid_points=0, max_starts=1, cross_fit=0, stability_regimes=0)
+        with contextlib.suppress(Exception):  # a warm-up that fails still warmed what it ran
+            diagnose(warm, vehicle, settings=light)
+    return _diagnose_metered(bag, vehicle, out)
 
 
 def _in_fresh_process(bag: Path, vehicle: str, warm: Path | None, out: Path | None) -> dict[str, Any]:
-    ctx = multiprocessing.get_context("spawn")
-    parent, child = ctx.Pipe(duplex=False)
-    args = (child, str(bag), vehicle, None if warm is None else str(warm), None if out is None else str(out))
-    proc = ctx.Process(target=_child, args=args)
-    proc.start()
-    child.close()
-    try:
-        row: dict[str, Any] = parent.recv()
-    except EOFError:
-        row = {"skipped": f"the diagnosing process died (exit code {proc.exitcode})"}
-    proc.join()
-    return row
+    args = (str(bag), vehicle, None if warm is None else str(warm), None if out is None else str(out))
+    return run_in_fresh_process(_warm_and_diagnose, args, error_key="skipped", what="diagnosing")
 
 
 def bench_diagnosis_scaling(

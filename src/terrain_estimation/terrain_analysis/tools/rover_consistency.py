@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from terrain_analysis.tools.rover_runs import stamp_indices
 from terrain_estimation.analysis.consistency import consistency_report
 
 __all__ = ["QUANTITIES", "consistency_figures", "criteria_hold", "section_consistency"]
@@ -41,15 +42,6 @@ E2S2_BAND = (0.5, 2.0)
 WITHIN_BAND = (0.90, 0.98)
 
 
-def _stamp_indices(time_s: NDArray[np.float64], stamps: NDArray[np.float64]) -> tuple[Any, Any]:
-    rate = (time_s.size - 1) / (time_s[-1] - time_s[0]) if time_s.size > 1 else 50.0
-    idx = np.rint((stamps - time_s[0]) * rate).astype(int)
-    ok = (idx >= 0) & (idx < time_s.size)
-    idx = np.clip(idx, 0, max(time_s.size - 1, 0))
-    ok &= np.abs(time_s[idx] - stamps) <= 1e-6
-    return idx, ok
-
-
 def consistency_figures(res: Any, terrains: Sequence[int], variant: str) -> dict[str, Any]:
     """Pooled figures of one variant over ``terrains``: per quantity (e²/σ², within 2σ, samples), NEES, band, τ."""
     errors: list[NDArray[np.float64]] = []
@@ -62,7 +54,7 @@ def consistency_figures(res: Any, terrains: Sequence[int], variant: str) -> dict
             s = data.series.get((i, variant))
             if s is None or not s.variances or s.t.size == 0:
                 continue
-            idx, ok = _stamp_indices(data.time, s.t)
+            idx, ok = stamp_indices(data.time, s.t)
             keep = ok & s.settled
             if not np.any(keep):
                 continue
