@@ -49,11 +49,11 @@ from terrain_estimation.estimators.soil_stiffness_kernels import (
     input_gain,
     ktot,
     ktot_slope,
-    measurement_noise_factor,
     measurement_sums,
     noise_factor,
     propagate,
     run_compiled_step,
+    step_noise_factor,
     stiffness_map,
     taylor4,
     transition_matrices,
@@ -194,16 +194,14 @@ def ekf_step(
     P_pred = symmetrise(mul_bt(mul(F, P), F) + mul_bt(L, L))
     if not step.update:
         return STATUS_OK, x_pred, P_pred, 0.0, False, x_pred, P_pred
-    z = step.z
-    p = z.shape[0]
     # R, or R_eff = R + G Σ_ε Gᵀ with G = [C(x̄) B, D] at the predicted mean; R is used as √R √Rᵀ.
-    Rs, ok = measurement_noise_factor(
-        x_pred[n - 1], ops.b, ops.c0, ops.ce, ops.d, ops.sqrt_r, km, p, step.sigma_eps, step.profile_noise
-    )
+    Rs, ok = step_noise_factor(x_pred, ops, km, step)
     if not ok:
         return STATUS_FAILED, x_pred, P_pred, 0.0, False, x_pred, P_pred
     R = mul_bt(Rs, Rs)
     # ẑ = C(x̄) x̄ + D ḣ(t) and H = ∂h/∂x at x̄ (measurement_jacobian).
+    z = step.z
+    p = z.shape[0]
     k_raw = x_pred[n - 1]
     k = ktot(k_raw, km)
     slope = ktot_slope(k_raw, km)

@@ -41,6 +41,7 @@ __all__ = [
     "noise_factor",
     "propagate",
     "run_compiled_step",
+    "step_noise_factor",
     "transition_matrices",
     "warm_up_arguments",
     "STATUS_FAILED",
@@ -380,6 +381,27 @@ def measurement_noise_factor(
                     s += gain[r, i] * sigma_eps[i, j] * gain[c, j]
             r_eff[r, c] = s + (sqrt_r[r] * sqrt_r[r] if r == c else 0.0)
     return cholesky_lower(0.5 * (r_eff + r_eff.T))
+
+
+@compiled
+def step_noise_factor(
+    x_pred: np.ndarray, ops: ModelOperands, km: StiffnessMap, step: StepData
+) -> tuple[np.ndarray, bool]:  # pragma: no cover
+    """:func:`measurement_noise_factor` of a step's measurement ``step.z`` at the predicted mean ``x_pred``:
+    ``√R``, or with ``step.profile_noise`` the factor of ``R_eff = R + G Σ_ε Gᵀ``, ``G = [C(x̄) B, D]``
+    (the update of both compiled filters); ``ok`` False where ``R_eff`` is not positive definite."""
+    return measurement_noise_factor(
+        x_pred[x_pred.shape[0] - 1],
+        ops.b,
+        ops.c0,
+        ops.ce,
+        ops.d,
+        ops.sqrt_r,
+        km,
+        step.z.shape[0],
+        step.sigma_eps,
+        step.profile_noise,
+    )
 
 
 def run_compiled_step(

@@ -41,12 +41,12 @@ from terrain_estimation.estimators.soil_stiffness_kernels import (
     StepData,
     compile_step,
     ktot,
-    measurement_noise_factor,
     measurement_sums,
     model_operands,
     noise_factor,
     propagate,
     run_compiled_step,
+    step_noise_factor,
     stiffness_map,
 )
 from terrain_estimation.filters.compiled_linalg import all_finite, mul, row_mean, solve_lower, tria
@@ -112,9 +112,7 @@ def sckf_step(
     z = step.z
     p = z.shape[0]
     # √R_eff: R + G Σ_ε Gᵀ, G = [C(x̄) B, D] at the predicted mean.
-    Rs, ok = measurement_noise_factor(
-        x_pred[n - 1], ops.b, ops.c0, ops.ce, ops.d, ops.sqrt_r, km, p, step.sigma_eps, step.profile_noise
-    )
+    Rs, ok = step_noise_factor(x_pred, ops, km, step)
     if not ok:
         return STATUS_FAILED, x_pred, S_pred, 0.0, False, x_pred, S_pred
     # (19)-(21) predicted measurement of the points around the prior
