@@ -14,6 +14,7 @@ generator stays independent of them (``test_independent_generator.py``).
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import hashlib
 import json
@@ -22,18 +23,21 @@ import sys
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import Any, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
 __all__ = [
+    "BagDraw",
     "SuitePlan",
     "check_request",
+    "draw_bag",
     "g4",
     "keep_some",
     "log_uniform",
     "map_jobs",
     "run_generator",
+    "run_suite_cli",
     "unique_id",
     "vehicle_rng",
     "worker_pool",
@@ -79,6 +83,43 @@ def unique_id(rng: np.random.Generator, ids: set[str]) -> str:
         bag_id = rng.bytes(6).hex()
     ids.add(bag_id)
     return bag_id
+
+
+class BagDraw(NamedTuple):
+    """The draws that open every bag's plan (see :func:`draw_bag`)."""
+
+    id: str
+    duration: float
+    scenario: dict[str, Any]
+    seed: int
+    start_time_ns: int
+
+
+def draw_bag(
+    rng: np.random.Generator,
+    ids: set[str],
+    vehicle: str,
+    rough: bool,
+    *,
+    durations: tuple[float, float],
+    duration: float | None,
+    start_range_s: tuple[float, float],
+    scenario: Callable[[str, np.random.Generator, bool], dict[str, Any]],
+) -> BagDraw:
+    """A bag's id, duration, scenario, noise seed and start time, drawn from ``rng`` in that order.
+
+    The duration is ``duration`` when given, else uniform in ``durations``
+    (s, rounded to 0.01 s); ``scenario(vehicle, rng, rough)`` draws the
+    scenario; the start time is uniform in ``start_range_s`` (s since the
+    epoch, returned in ns).
+    """
+    bag_id = unique_id(rng, ids)
+    lo, hi = durations
+    length = float(duration) if duration is not None else round(float(rng.uniform(lo, hi)), 2)
+    drawn = scenario(vehicle, rng, rough)
+    bag_seed = int(rng.integers(2**31 - 1))
+    start = int(rng.integers(int(start_range_s[0] * 1e9), int(start_range_s[1] * 1e9)))
+    return BagDraw(bag_id, length, drawn, bag_seed, start)
 
 
 def keep_some(rng: np.random.Generator, count: int) -> list[bool]:
@@ -197,3 +238,50 @@ def run_generator(
         "(manifest.json for the diagnosis, labels.json for the scorer only)"
     )
     return 0
+
+
+def run_suite_cli(
+    prog: str,
+    args: argparse.Namespace,
+    known: tuple[str, ...],
+    plan_suite: Callable[..., Sequence[P]],
+    generate: Callable[..., Mapping[str, Any]],
+    errors: tuple[type[Exception], ...],
+    *,
+    plan_options: Mapping[str, Any] | None = None,
+    generate_options: Mapping[str, Any] | None = None,
+) -> int:
+    """:func:`run_generator` on the options every blind-suite command line has.
+
+    ``args`` holds ``out``, ``seed``, ``vehicle`` (the vehicles, once each in
+    the order given; None for all ``known``), ``per_effect``, ``controls``,
+    ``out_of_catalogue``, ``effect``, ``duration``, ``jobs`` and
+    ``no_signature``; they become
+    ``plan_suite(seed, vehicles, per_effect=, controls=, out_of_catalogue=,
+    effects=, duration=, **plan_options)`` and ``generate(out, plans, jobs=,
+    signatures=, **generate_options)``.
+    """
+    vehicles = tuple(dict.fromkeys(args.vehicle)) if args.vehicle else known
+    return run_generator(
+        prog,
+        args.out,
+        vehicles,
+        lambda: plan_suite(
+            args.seed,
+            vehicles,
+            per_effect=args.per_effect,
+            controls=args.controls,
+            out_of_catalogue=args.out_of_catalogue,
+            effects=args.effect,
+            duration=args.duration,
+            **(plan_options or {}),
+        ),
+        lambda plans: generate(
+            args.out,
+            plans,
+            jobs=max(1, args.jobs),
+            signatures=not args.no_signature,
+            **(generate_options or {}),
+        ),
+        errors,
+    )

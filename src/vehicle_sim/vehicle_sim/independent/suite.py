@@ -20,12 +20,12 @@ from vehicle_sim.independent import quarter_car as qc
 from vehicle_sim.independent import skid_steer as ss
 from vehicle_sim.independent.blind_suite import (
     check_request,
+    draw_bag,
     g4,
     keep_some,
     log_uniform,
     map_jobs,
-    run_generator,
-    unique_id,
+    run_suite_cli,
     vehicle_rng,
     worker_pool,
     write_manifest_and_labels,
@@ -297,12 +297,16 @@ def plan_suite(
         jobs += [("structure_control", None, None)] * n_struct
         jobs += [("out_of_catalogue", None, ooc_names[i % len(ooc_names)]) for i in range(n_ooc)]
         for kind, effect, ooc in jobs:
-            bag_id = unique_id(rng, ids)
-            lo, hi = DURATIONS[vehicle]
-            length = float(duration) if duration is not None else round(float(rng.uniform(lo, hi)), 2)
-            scenario = _scenario(vehicle, rng, rough=effect == "wheel_liftoff")
-            bag_seed = int(rng.integers(2**31 - 1))
-            start = int(rng.integers(int(_START_S[0] * 1e9), int(_START_S[1] * 1e9)))
+            bag_id, length, scenario, bag_seed, start = draw_bag(
+                rng,
+                ids,
+                vehicle,
+                effect == "wheel_liftoff",
+                durations=DURATIONS[vehicle],
+                duration=duration,
+                start_range_s=_START_S,
+                scenario=_scenario,
+            )
             parameters: dict[str, float] = {}
             structure: dict[str, Any] = {}
             ooc_values: dict[str, Any] = {}
@@ -685,28 +689,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--jobs", type=int, default=1, help="parallel processes (default 1)")
     parser.add_argument("--no-signature", action="store_true", help="skip the effect signatures (no twin runs)")
     args = parser.parse_args(argv)
-    vehicles = tuple(dict.fromkeys(args.vehicle)) if args.vehicle else VEHICLES
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    return run_generator(
+    return run_suite_cli(
         "independent",
-        args.out,
-        vehicles,
-        lambda: plan_suite(
-            args.seed,
-            vehicles,
-            per_effect=args.per_effect,
-            controls=args.controls,
-            structure_controls=args.structure_controls,
-            out_of_catalogue=args.out_of_catalogue,
-            effects=args.effect,
-            duration=args.duration,
-        ),
-        lambda plans: generate(
-            args.out,
-            plans,
-            jobs=max(1, args.jobs),
-            signatures=not args.no_signature,
-            progress=lambda line: print(line, file=sys.stderr, flush=True),
-        ),
+        args,
+        VEHICLES,
+        plan_suite,
+        generate,
         (ValueError, OSError, FloatingPointError),
+        plan_options={"structure_controls": args.structure_controls},
+        generate_options={"progress": lambda line: print(line, file=sys.stderr, flush=True)},
     )

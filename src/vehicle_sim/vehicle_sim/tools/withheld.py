@@ -175,7 +175,7 @@ from terrain_estimation.params import ParameterError
 from terrain_estimation.ros.time import ns_to_stamp, stamp_to_ns
 from terrain_estimation.tools.estimate import topic_name
 from vehicle_sim.effects import effects_for
-from vehicle_sim.independent.blind_suite import g4, map_jobs, run_generator, worker_pool, write_manifest_and_labels
+from vehicle_sim.independent.blind_suite import g4, map_jobs, run_suite_cli, worker_pool, write_manifest_and_labels
 from vehicle_sim.ros.registry import get_simulator, simulator_parameters
 from vehicle_sim.tools.withheld_plan import (
     _SCALE_CHANNEL,
@@ -626,23 +626,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="skip the effect signatures in labels.json (no twin simulations: about half the time)",
     )
     args = parser.parse_args(argv)
-    vehicles = tuple(dict.fromkeys(args.vehicle)) if args.vehicle else VEHICLES
-    return run_generator(
+    return run_suite_cli(
         "withheld",
-        args.out,
-        vehicles,
-        lambda: plan_suite(
-            args.seed,
-            vehicles,
-            per_effect=args.per_effect,
-            controls=args.controls,
-            out_of_catalogue=args.out_of_catalogue,
-            duration=args.duration,
-            effects=args.effect,
-            rough_controls=args.rough_controls,
-        ),
-        lambda plans: generate(args.out, plans, jobs=max(1, args.jobs), signatures=not args.no_signature),
+        args,
+        VEHICLES,
+        plan_suite,
+        generate,
         (BagError, ParameterError, ValueError, OSError),
+        plan_options={"rough_controls": args.rough_controls},
     )
 
 

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from vehicle_sim.effects import CATALOGUE, EffectParameter
-from vehicle_sim.independent.blind_suite import check_request, keep_some, log_uniform, unique_id, vehicle_rng
+from vehicle_sim.independent.blind_suite import check_request, draw_bag, keep_some, log_uniform, vehicle_rng
 from vehicle_sim.ros.registry import get_simulator, simulator_parameters
 
 __all__ = [
@@ -352,12 +352,16 @@ def plan_suite(
         if vehicle in _SOILS:
             jobs += [("control", None, None, True)] * n_rough
         for kind, effect, ooc, rough in jobs:
-            bag_id = unique_id(rng, ids)
-            lo, hi = DURATIONS[vehicle]
-            length = float(duration) if duration is not None else round(float(rng.uniform(lo, hi)), 2)
-            scenario = _scenario(vehicle, rng, rough)
-            bag_seed = int(rng.integers(2**31 - 1))
-            start = int(rng.integers(int(_START_TIME_RANGE_S[0] * 1e9), int(_START_TIME_RANGE_S[1] * 1e9)))
+            bag_id, length, scenario, bag_seed, start = draw_bag(
+                rng,
+                ids,
+                vehicle,
+                rough,
+                durations=DURATIONS[vehicle],
+                duration=duration,
+                start_range_s=_START_TIME_RANGE_S,
+                scenario=_scenario,
+            )
             values: dict[str, float] = {}
             rules: dict[str, dict[str, Any]] = {}
             ooc_values: dict[str, Any] = {}
