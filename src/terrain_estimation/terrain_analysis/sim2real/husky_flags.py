@@ -144,7 +144,8 @@ def flag_fit(subject: str, fit: PhysicsFit, model: SkidSteerReplay, terrain: str
             flags.append(_flag(subject, name, name, value, "", reason))
     for effect, values in fit.effects.items():
         for p in model.candidates[effect].parameters:
-            flags += _flag_effect(subject, effect, p, values[p.name])
+            if p.name in values:  # a parameter the physics fit left at its nominal value is not a finding
+                flags += _flag_effect(subject, effect, p, values[p.name])
     return flags
 
 

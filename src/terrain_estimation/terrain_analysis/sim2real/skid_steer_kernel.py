@@ -31,8 +31,9 @@ _N_P = 30
 #: tire forces, lateral sliding resistance. Indexed in two dimensions, not through row views: numba makes each view
 #: a reference-counted array on every call (≈ 10 % of the replay's time).
 _W_CVX, _W_CVY, _W_SX, _W_SY, _W_LOAD, _W_RPL, _W_OM, _W_FX, _W_FY, _W_SLIDING = range(10)
-#: Lateral contact speed over which the soil's lateral resistance (turning_resistance) builds up (m/s): the
-#: catalogue's stated form F_b = −c_b F_z tanh(v_y / 0.05 m/s).
+#: Lateral contact speed over which the soil's lateral resistance (turning_resistance) builds up (m/s), nominal:
+#: the catalogue's stated form F_b = −c_b F_z tanh(v_y / 0.05 m/s); the replay fits it
+#: (:data:`~terrain_analysis.sim2real.skid_steer_replay.TURNING_RESISTANCE_SPEED_PARAMETER`).
 TURNING_RESISTANCE_SPEED = 0.05
 #: Shortest relaxation length the replay integrates (m): 5 mm lags the force by 5 ms at 1 m/s, below one IMU
 #: sample, so a fitted length of 0 (no lag on that axis) runs as this one.
@@ -309,6 +310,7 @@ class Physics:
     terrain_grade: float = 0.0
     terrain_bank: float = 0.0
     turning_resistance: float = 0.0
+    turning_resistance_speed: float = TURNING_RESISTANCE_SPEED
     load_transfer_dynamics: bool = False
     tire_relaxation: bool = False
     relaxation_length_x: float | None = None
@@ -399,7 +401,7 @@ def replay_imu(
     p[_P_RADIUS], p[_P_CX], p[_P_CA], p[_P_MU], p[_P_FLOOR] = radius, cx, ca, mu, vehicle.rolling_speed_floor
     p[_P_MASS], p[_P_IZ], p[_P_RR], p[_P_INV_RRV] = m, iz, rr, 1.0 / vehicle.rolling_resistance_speed
     p[_P_GPX], p[_P_GPY], p[_P_GN] = -g * sg, -g * cg * sb, g * cos_grade
-    p[_P_BULL], p[_P_INV_VB] = physics.turning_resistance, 1.0 / TURNING_RESISTANCE_SPEED
+    p[_P_BULL], p[_P_INV_VB] = physics.turning_resistance, 1.0 / physics.turning_resistance_speed
     p[_P_RELAX] = 1.0 if physics.tire_relaxation else 0.0
     lx, ly = physics.relaxation_length_x, physics.relaxation_length_y
     p[_P_INV_LX] = 1.0 / (vehicle.longitudinal_relaxation_length if lx is None else max(lx, RELAXATION_LENGTH_MIN))

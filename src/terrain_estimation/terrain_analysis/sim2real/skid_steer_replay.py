@@ -18,7 +18,13 @@ from numpy.typing import NDArray
 from terrain_analysis.sim2real.model import Candidate, Channel, FitParameter, candidates_from_catalogue
 from terrain_analysis.sim2real.skid_steer_bag import SkidSteerBagData, wheel_speeds_at
 from terrain_analysis.sim2real.skid_steer_input import smooth_wheel_speeds
-from terrain_analysis.sim2real.skid_steer_kernel import RELAXATION_LENGTH_MIN, Physics, Sensing, replay_imu
+from terrain_analysis.sim2real.skid_steer_kernel import (
+    RELAXATION_LENGTH_MIN,
+    TURNING_RESISTANCE_SPEED,
+    Physics,
+    Sensing,
+    replay_imu,
+)
 from terrain_analysis.sim2real.skid_steer_vehicle import ReplayVehicle, no_slip_motion
 
 __all__ = ["DIAGNOSIS_STEP", "NUISANCE", "SkidSteerReplay"]
@@ -95,6 +101,21 @@ RELAXATION_CANDIDATE = Candidate(
         (("relaxation_length_x", 0.3), ("relaxation_length_y", 0.5), ("relaxation_rolling_weight", 0.0)),
         (("relaxation_length_x", 0.3), ("relaxation_length_y", 0.5), ("relaxation_rolling_weight", 1.0)),
     ),
+)
+
+
+#: ``turning_resistance`` with the speed over which it builds up fitted, v_b (the catalogue's is fixed at 0.05 m/s):
+#: how fast the soil's lateral resistance rises with a wheel's lateral sliding depends on the soil and the
+#: sinkage (a rut sheared at once, or a berm bulldozed up over centimetres of travel). Below that speed the
+#: resistance grows like a cornering stiffness (c_b F_z / v_b per m/s of sliding), above it like a friction: a
+#: fixed speed makes a slower law look like a cornering-stiffness change. Both ends of its range are laws of the
+#: family: a Coulomb step, and a lateral damping that never saturates in the bag.
+TURNING_RESISTANCE_SPEED_PARAMETER = FitParameter(
+    "turning_resistance_speed", "m/s", TURNING_RESISTANCE_SPEED, (0.005, 0.5), 0.05, physical_bounds=True
+)
+TURNING_RESISTANCE_DESCRIPTION = (
+    "lateral soil resistance F_b = −c_b F_z tanh(v_y / v_b) per wheel against its lateral sliding v_y (v_b the "
+    "speed over which it builds up): a resistive yaw moment in skid-steer turns"
 )
 
 
@@ -213,6 +234,11 @@ class SkidSteerReplay:
         candidates = dict(candidates)
         if "tire_relaxation" in candidates and not candidates["tire_relaxation"].parameters:
             candidates["tire_relaxation"] = RELAXATION_CANDIDATE
+        if "turning_resistance" in candidates and len(candidates["turning_resistance"].parameters) == 1:
+            c_b = candidates["turning_resistance"].parameters[0]  # the catalogue's, with its plausible range
+            candidates["turning_resistance"] = Candidate(
+                "turning_resistance", (c_b, TURNING_RESISTANCE_SPEED_PARAMETER), TURNING_RESISTANCE_DESCRIPTION
+            )
         self.candidates: Mapping[str, Candidate] = _restrict_to_channels(candidates, self._channel_names, self.notes)
         if "wheel_speed_delay" in self.candidates:
             # The IMU's last d seconds follow wheel speeds the bag no longer holds: with the encoder-stream delay
@@ -274,6 +300,7 @@ class SkidSteerReplay:
             terrain_grade=value("terrain_grade", "terrain_grade", 0.0),
             terrain_bank=value("terrain_grade", "terrain_bank", 0.0),
             turning_resistance=value("turning_resistance", "turning_resistance", 0.0),
+            turning_resistance_speed=value("turning_resistance", "turning_resistance_speed", TURNING_RESISTANCE_SPEED),
             load_transfer_dynamics="load_transfer_dynamics" in effects,
             tire_relaxation="tire_relaxation" in effects and not _no_lag(effects["tire_relaxation"]),
             relaxation_length_x=_optional(effects.get("tire_relaxation", {}), "relaxation_length_x"),
