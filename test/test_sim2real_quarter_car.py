@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from independent_bags import diagnose_independent_bag
 
 from terrain_analysis.sim2real.attribution import attribute
 from terrain_analysis.sim2real.model import usable_mask
@@ -322,29 +323,12 @@ def test_the_independent_generators_two_point_follower_is_attributed(
     # Issue 22: the independent generator (vehicle_sim.independent, written apart from the diagnosis)
     # envelops the road with a two-point follower; the catalogue's mean over the patch fitted it as
     # "structure differs" (0 of 6 in its suite), with contact lengths of 0.46-0.5 m for 0.22-0.29 m.
-    from vehicle_sim.independent import suite
-
-    plans = suite.plan_suite(
-        11,
-        ["quarter_car"],
-        per_effect=1,
-        controls=0,
-        structure_controls=0,
-        out_of_catalogue=0,
-        effects=["tire_enveloping"],
-        duration=10.0,
+    code, printed, label, attribution = diagnose_independent_bag(
+        tmp_path, capsys, "quarter_car", "tire_enveloping", 11, plan_duration=10.0
     )
-    suite.generate(tmp_path / "suite", plans, jobs=1, signatures=False)
-    labels = json.loads((tmp_path / "suite" / "labels.json").read_text())["labels"]
-    ((bag_id, label),) = labels.items()
-    out = tmp_path / "report"
-    code = sim2real_main(
-        [str(tmp_path / "suite" / label["bag"]), "--vehicle", "quarter_car", "-o", str(out), "-q", "--no-figures"]
-    )
-    printed = capsys.readouterr().out
     assert code == 1, printed
     assert "verdict: explained by tire_enveloping" in printed, printed
-    best = json.loads((out / "diagnosis.json").read_text())["attribution"]["best"]
+    best = attribution["best"]
     true_length = label["parameters"]["tire_contact_length"]
     assert best["parameters"]["tire_enveloping"]["tire_contact_length"] == pytest.approx(true_length, rel=0.15)
 

@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from independent_bags import diagnose_independent_bag
 
 from terrain_analysis.sim2real.model import ReplayModel
 from terrain_analysis.sim2real.skid_steer import (
@@ -280,31 +281,11 @@ def test_turning_resistance_fits_its_build_up_speed(tmp_path, capsys):
     # fixed, these 10 s of the bag read "not explained by the catalogue" (its whole 18 s "no significant gap":
     # the slow rise passed for a cornering stiffness within its tolerance) and its suite's bags 1 of 6 right (two
     # read as cornering_stiffness_change ≈ 2.5); with the speed fitted, 5 of 6.
-    import dataclasses
-    import json
-
-    from terrain_analysis.tools.sim2real import main as sim2real_main
-    from vehicle_sim.independent import suite
-
-    plans = suite.plan_suite(
-        4002,
-        ["skid_steer"],
-        per_effect=6,
-        controls=0,
-        structure_controls=0,
-        out_of_catalogue=0,
-        effects=["turning_resistance"],
+    code, printed, label, attribution = diagnose_independent_bag(
+        tmp_path, capsys, "skid_steer", "turning_resistance", 4002, per_effect=6, plan_id="467480570b49", duration=10.0
     )
-    (plan,) = [dataclasses.replace(p, duration=10.0) for p in plans if p.id == "467480570b49"]
-    suite.generate(tmp_path / "suite", [plan], jobs=1, signatures=False)
-    ((_, label),) = json.loads((tmp_path / "suite" / "labels.json").read_text())["labels"].items()
-    out = tmp_path / "report"
-    code = sim2real_main(
-        [str(tmp_path / "suite" / label["bag"]), "--vehicle", "skid_steer", "-o", str(out), "-q", "--no-figures"]
-    )
-    printed = capsys.readouterr().out
     assert code == 1, printed
     assert "verdict: explained by turning_resistance" in printed, printed
-    fitted = json.loads((out / "diagnosis.json").read_text())["attribution"]["best"]["parameters"]
+    fitted = attribution["best"]["parameters"]
     speed = fitted["turning_resistance"]["turning_resistance_speed"]
     assert label["parameters"]["turning_resistance_speed"] < speed < 0.2  # slower than tanh(v_y / 0.05)
