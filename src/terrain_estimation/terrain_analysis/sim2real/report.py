@@ -157,7 +157,7 @@ def _fmt_params(m: FittedModel) -> str:
 
 
 def _pm(sd: float) -> str:
-    """" ± 1σ", or that the data do not identify the parameter (an infinite standard error)."""
+    """The "± 1σ" suffix of a value, or that the data do not identify it (an infinite standard error)."""
     return " (not identified)" if math.isinf(sd) else f" ± {sd:.2g}"
 
 
