@@ -151,3 +151,9 @@ def test_values_at_a_fit_bound_are_flagged_but_an_effect_at_its_off_value_is_not
             if f["parameter"] == "turning_resistance.turning_resistance"
         }
         assert got == expected, (c_b, got)
+    # Its build-up speed at either end of its range is a law of the family (a Coulomb step, a lateral damping):
+    # no flag, where the resistance's size at its fit bound still is one.
+    both = {"turning_resistance": {"turning_resistance": 1.5, "turning_resistance_speed": 0.5}}
+    flagged = {f["parameter"] for f in flag_fit("x", PhysicsFit(**{**vars(fit), "effects": both}), model, "ASPHALT")}
+    assert "turning_resistance.turning_resistance" in flagged
+    assert "turning_resistance.turning_resistance_speed" not in flagged

@@ -79,10 +79,13 @@ def flag_value(
     *,
     off: float | None = None,
     physical: tuple[str, float, float, float, str] | None = None,
+    bounds_are_laws: bool = False,
 ) -> list[dict[str, Any]]:
     """Flags of one fitted value: at a bound of its fit range (not at its off value), outside its physical range.
 
     ``physical`` = (quantity, factor, low, high, unit): the value × factor must lie in [low, high].
+    ``bounds_are_laws``: both ends of the fit range are valid laws (:attr:`FitParameter.physical_bounds`, a
+    shape parameter): a value there is no finding.
     """
     flags: list[dict[str, Any]] = []
     lo, hi = bounds
@@ -90,7 +93,7 @@ def flag_value(
     if physical is not None:
         quantity, factor, _, _, unit = physical
     shown = value * factor
-    for bound in (lo, hi):
+    for bound in () if bounds_are_laws else (lo, hi):
         # 1 % of the span, and no more than 2 % of the bound itself (a scale range 0.05–10 spans 200×).
         tol = BOUND_TOLERANCE * (hi - lo)
         if bound != 0.0:
@@ -128,6 +131,7 @@ def _flag_effect(subject: str, effect: str, parameter: FitParameter, value: floa
         parameter.bounds,
         off=parameter.off,
         physical=_effect_physical(effect, parameter.name),
+        bounds_are_laws=parameter.physical_bounds,
     )
 
 
