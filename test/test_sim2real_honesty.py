@@ -335,3 +335,17 @@ def test_a_parameter_the_data_do_not_constrain_has_no_interval() -> None:
     from terrain_analysis.sim2real.report import _fmt_params
 
     assert "unused = " in _fmt_params(bias) and "not identified by the data" in _fmt_params(bias)
+
+
+def test_a_no_gap_verdict_names_a_nominal_value_beyond_its_tolerance() -> None:
+    """The toy bag's amplitude is 1.3 against a nominal 1 ± 0.05 (1σ): the nominal fit takes it as a nuisance
+    and leaves no gap, but a nominal value six tolerances off is a finding about the vehicle, in the verdict
+    (an independent skid-steer bag fitted C_x at 0.56 of its config value, 1 ± 0.2, and read plain "no gap")."""
+    model = _toy({}, seed=63)
+    model.nuisance = [FitParameter("amplitude", "m", 1.0, (0.2, 5.0), 0.2, prior_std=0.05)]
+    report = attribute(model, FAST)
+    assert report.kind == "no_gap", report.verdict
+    assert "nominal value beyond its tolerance: amplitude = 1.29" in report.verdict, report.verdict
+    within = _toy({}, seed=63)
+    within.nuisance = [FitParameter("amplitude", "m", 1.0, (0.2, 5.0), 0.2, prior_std=0.2)]
+    assert attribute(within, FAST).verdict == "no significant gap"  # 1.5 tolerances: within 2

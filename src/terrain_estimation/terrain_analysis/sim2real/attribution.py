@@ -73,6 +73,10 @@ Method
          parameter's error (the skid steer's effective wheel radius, its
          cornering stiffness), fitted within 2 of the config's tolerances
          (1 σ) of nominal (:func:`~terrain_analysis.sim2real.tolerance.within_tolerance`).
+         A "no significant gap" verdict names every toleranced nominal
+         parameter the fit needed beyond 2 tolerances ("nominal value beyond
+         its tolerance: …"): the residual is at the noise, but the vehicle's
+         nominal value is not what the config says.
        An effect is also significant when the held-out *likelihood ratio*
        (:func:`_likelihood_ratio`: the residual's own level instead of the
        conservative budget, autocorrelation accounted for; for the most
@@ -485,6 +489,14 @@ def attribute(
                     for r in tolerated
                 )
                 + f", within {WITHIN:g}σ)"
+            )
+        # A nominal parameter the fit needed beyond WITHIN of its tolerances is a finding about the vehicle's
+        # nominal values even where the residual leaves no gap: said in the verdict, not only in the table.
+        beyond = [r for r in _tolerance_rows(model, nominal) if not r["within"]]
+        if beyond:
+            verdict += "; nominal value beyond its tolerance: " + "; ".join(
+                f"{r['parameter']} = {r['fitted']:.4g}, nominal {r['nominal']:.4g} ± {r['tolerance']:.3g} (1σ)"
+                for r in beyond
             )
         if not_identifiable:
             verdict += "; not identifiable from this bag: " + ", ".join(x["effect"] for x in not_identifiable)
