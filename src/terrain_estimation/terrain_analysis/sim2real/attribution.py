@@ -479,6 +479,7 @@ def attribute(
             kind, explained = "no_gap", ()
             say(f"{best.name} is fitted within the nominal tolerance: no significant gap")
     not_identifiable = _not_identifiable(model, problem, nominal, ranking, settings)
+    nominal_rows = _tolerance_rows(model, nominal)
     if kind == "no_gap":
         verdict = "no significant gap"
         if tolerated:
@@ -492,7 +493,7 @@ def attribute(
             )
         # A nominal parameter the fit needed beyond WITHIN of its tolerances is a finding about the vehicle's
         # nominal values even where the residual leaves no gap: said in the verdict, not only in the table.
-        beyond = [r for r in _tolerance_rows(model, nominal) if not r["within"]]
+        beyond = [r for r in nominal_rows if not r["within"]]
         if beyond:
             verdict += "; nominal value beyond its tolerance: " + "; ".join(
                 f"{r['parameter']} = {r['fitted']:.4g}, nominal {r['nominal']:.4g} ± {r['tolerance']:.3g} (1σ)"
@@ -567,8 +568,7 @@ def attribute(
         notes=notes + list(model.notes),
         structure=structure,
         not_identifiable=not_identifiable,
-        tolerances=_tolerance_rows(model, nominal)
-        + [_explanation_row(model, best, r) for r in tolerated if best is not None],
+        tolerances=nominal_rows + [_explanation_row(model, best, r) for r in tolerated if best is not None],
         series=series,
         test_masks=dict(test),
     )
