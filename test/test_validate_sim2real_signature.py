@@ -80,6 +80,8 @@ def test_scores_are_stratified_by_signature(tmp_path: Path) -> None:
         "≥ 30": (1, 1),
     }
     assert skid["visible"] == {"n": 3, "right": 2, "top1": pytest.approx(2 / 3), "unknown": 0}
+    # Below what an ideal detector could see (a3, b1): reported as no gap, never named as another effect.
+    assert every["unseen"] == {"n": 2, "named_wrong": 0, "not_named_wrong": 1.0, "listed_not_identifiable": 0}
     assert every["visible"]["n"] == 4 and every["visible"]["top1"] == pytest.approx(3 / 4)
     assert every["signature_bins"]["SNR < 3"]["n"] == 2 and every["signature_bins"]["SNR < 3"]["right"] == 0
     assert every["signature_bins"]["≥ 30"] == {"n": 2, "right": 2, "top1": 1.0}
@@ -94,6 +96,7 @@ def test_scores_are_stratified_by_signature(tmp_path: Path) -> None:
     text = score_markdown(scores, CONTEXT)
     assert "top-1 attribution for single effects: 50.0 % (target ≥ 90 %) — **NOT met**" in text
     assert "bags whose effect an ideal detector could see (SNR ≥ 3): 75.0 % of 4." in text
+    assert "could not see (SNR < 3) never named wrongly (issue 22): 100.0 % of 2 (target 100 %; 0 named" in text
     assert "| **all** | 0.0 % of 2 | 100.0 % of 1 | 0.0 % of 1 | 100.0 % of 2 | 75.0 % of 4 |" in text
     assert "| sensor_delay | 0/1 | 1/1 |  |  | 2.5 |" in text
     assert (
@@ -137,3 +140,25 @@ def test_rough_road_controls_are_shown_apart_and_counted_as_controls(tmp_path: P
     assert lrv["controls"] == 2 and lrv["controls_no_gap"] == pytest.approx(0.5)
     assert set(lrv["confusion"]) == {"control", "control (F road)"}
     assert [m["truth"] for m in lrv["misses"]] == ["control (F road)"]
+
+
+def test_an_unseen_effect_named_as_another_is_counted(tmp_path: Path) -> None:
+    """A bag whose effect an ideal detector could not see, confidently explained by another effect: the
+    must-show 'never a confident wrong name' is not met; one listed 'not identifiable' is counted as such."""
+    suite, results = _suite(tmp_path)
+    labels = json.loads((suite / "labels.json").read_text())
+    labels["labels"]["c1"] = _label("rover", "effect", "sensor_delay", 1.5)
+    labels["labels"]["c2"] = _label("rover", "effect", "sensor_delay", 2.0)
+    (suite / "labels.json").write_text(json.dumps(labels))
+    wrong = _result("c1", "rover", "explained", ["imu_bias"])
+    listed = dict(_result("c2", "rover", "no_gap"), not_identifiable=["sensor_delay"])
+    scores = score(suite, [*results, wrong, listed])
+    assert scores["rover"]["unseen"] == {
+        "n": 3,
+        "named_wrong": 1,
+        "not_named_wrong": pytest.approx(2 / 3),
+        "listed_not_identifiable": 1,
+    }
+    text = score_markdown(scores, CONTEXT)
+    assert "never named wrongly (issue 22): 75.0 % of 4 (target 100 %; 1 named as another effect, 1 with" in text
+    assert "— **NOT met**" in text.split("never named wrongly", 1)[1].splitlines()[0]

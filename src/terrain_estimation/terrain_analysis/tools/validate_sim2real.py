@@ -22,7 +22,10 @@ Three separate steps, so that the diagnosis never sees how a bag was made:
    :mod:`vehicle_sim.tools.withheld`), in the bins of
    :data:`SIGNATURE_BINS`, and reported over the bags an ideal detector
    could see (SNR ≥ :data:`VISIBLE_SNR`); the must-show targets stay on all
-   bags. Labels without a signature score as before (bin "unknown").
+   bags. The bags below it are held to issue 22's "reported as such, never
+   as a confident wrong name": the share not explained by another effect,
+   and how many list the effect as not identifiable. Labels without a
+   signature score as before (bin "unknown").
 
 Usage::
 
@@ -257,6 +260,11 @@ def _stratified(effect_rows: Sequence[tuple[dict[str, Any], dict[str, Any]]]) ->
             bins[name] = {"n": len(rows), "right": right, "top1": right / len(rows) if rows else math.nan}
     visible = [(lab, r) for lab, r in effect_rows if (_snr(lab) or 0.0) >= VISIBLE_SNR]
     right_visible = sum(_top1_right(lab, r) for lab, r in visible)
+    # Issue 22: an effect the bag cannot show is reported as such, never as a confident wrong name.
+    with_snr = [(lab, r, _snr(lab)) for lab, r in effect_rows]
+    unseen = [(lab, r) for lab, r, snr in with_snr if snr is not None and snr < VISIBLE_SNR]
+    named_wrong = sum(r["kind"] == "explained" and lab["effect"] not in r["explained_by"] for lab, r in unseen)
+    listed = sum(lab["effect"] in (r.get("not_identifiable") or []) for lab, r in unseen)
     per_effect: dict[str, dict[str, Any]] = {}
     for effect in sorted({lab["effect"] for lab, _ in effect_rows}):
         rows = [(lab, r) for lab, r in effect_rows if lab["effect"] == effect]
@@ -274,6 +282,12 @@ def _stratified(effect_rows: Sequence[tuple[dict[str, Any], dict[str, Any]]]) ->
             "right": right_visible,
             "top1": right_visible / len(visible) if visible else math.nan,
             "unknown": sum(_snr(lab) is None for lab, _ in effect_rows),
+        },
+        "unseen": {
+            "n": len(unseen),
+            "named_wrong": named_wrong,
+            "not_named_wrong": 1.0 - named_wrong / len(unseen) if unseen else math.nan,
+            "listed_not_identifiable": listed,
         },
         "per_effect_signature": per_effect,
     }
@@ -614,6 +628,15 @@ def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
             f'- structure-gap controls reported as "structure differs" (issue 22): {_pct(value)} of '
             f"{overall['structure_controls']} (target ≥ {100 * STRUCTURE_TARGET:.0f} %) — "
             f"**{'met' if ok else 'NOT met'}**"
+        )
+    unseen = overall.get("unseen")
+    if unseen is not None and unseen["n"]:
+        ok = unseen["named_wrong"] == 0
+        lines.append(
+            f"- effects an ideal detector could not see (SNR < {VISIBLE_SNR:g}) never named wrongly "
+            f"(issue 22): {_pct(unseen['not_named_wrong'])} of {unseen['n']} (target 100 %; "
+            f"{unseen['named_wrong']} named as another effect, {unseen['listed_not_identifiable']} with the effect "
+            f'listed "not identifiable from this bag") — **{"met" if ok else "NOT met"}**'
         )
     visible = overall.get("visible")
     if visible is not None:
