@@ -162,3 +162,23 @@ def test_an_unseen_effect_named_as_another_is_counted(tmp_path: Path) -> None:
     text = score_markdown(scores, CONTEXT)
     assert "never named wrongly (issue 22): 75.0 % of 4 (target 100 %; 1 named as another effect, 1 with" in text
     assert "— **NOT met**" in text.split("never named wrongly", 1)[1].splitlines()[0]
+
+
+def test_structure_controls_are_also_scored_over_what_a_detector_could_see(tmp_path: Path) -> None:
+    """A structure-gap control (another tire law alone) is right when read as "structure differs"; one whose
+    difference is below what an ideal detector could see reads "no significant gap" honestly, so the share
+    over the visible ones is printed beside the target's (which stays on every control)."""
+    suite, results = _suite(tmp_path)
+    labels = json.loads((suite / "labels.json").read_text())
+    for bag_id, snr, kind in (("s1", 2.0, "no_gap"), ("s2", 50.0, "structure_differs"), ("s3", 40.0, "explained")):
+        labels["labels"][bag_id] = _label("skid_steer", "structure_control", None, snr)
+        results.append(_result(bag_id, "skid_steer", kind, ["friction_change"] if kind == "explained" else None))
+    (suite / "labels.json").write_text(json.dumps(labels))
+    scores = score(suite, results)
+    skid = scores["skid_steer"]
+    assert skid["structure_controls"] == 3 and skid["structure_structural"] == pytest.approx(1 / 3)
+    assert skid["structure_visible"] == {"n": 2, "right": 1, "structural": 0.5}
+    assert scores["all"]["structure_visible"] == {"n": 2, "right": 1, "structural": 0.5}
+    text = score_markdown(scores, CONTEXT)
+    assert 'structure-gap controls reported as "structure differs" (issue 22): 33.3 % of 3' in text
+    assert "(not a target: over the 2 whose difference an ideal detector could see, SNR ≥ 3: 50.0 %)" in text
