@@ -182,3 +182,15 @@ def test_structure_controls_are_also_scored_over_what_a_detector_could_see(tmp_p
     text = score_markdown(scores, CONTEXT)
     assert 'structure-gap controls reported as "structure differs" (issue 22): 33.3 % of 3' in text
     assert "(not a target: over the 2 whose difference an ideal detector could see, SNR ≥ 3: 50.0 %)" in text
+
+
+def test_the_report_names_the_command_that_ran() -> None:
+    """A run over some vehicles names its own invocation, not the make target (which runs every vehicle)."""
+    from terrain_analysis.tools.validate_sim2real import DEFAULT_SEED, run_command
+
+    assert run_command("withheld", DEFAULT_SEED, None) == "make validate-sim2real"
+    assert run_command("withheld", 2027, []) == "make validate-sim2real-seed2027"
+    assert run_command("withheld", DEFAULT_SEED, ["rover"]) == (
+        "python -m terrain_analysis.tools.validate_sim2real --generator withheld --seed 2026 --vehicle rover"
+    )
+    assert run_command("independent", 2031, None).endswith("--generator independent --seed 2031")

@@ -103,6 +103,15 @@ UNKNOWN_BIN = "unknown"
 # ---------------------------------------------------------------------------
 
 
+def run_command(generator: str, seed: int, vehicles: Sequence[str] | None) -> str:
+    """The command the report names: the make target of a withheld suite's seed, else the module's invocation
+    (with ``--vehicle`` when only some vehicles were validated: not what the make target runs)."""
+    module = f"python -m terrain_analysis.tools.validate_sim2real --generator {generator} --seed {seed}"
+    if vehicles:
+        return module + "".join(f" --vehicle {v}" for v in vehicles)
+    return MAKE_TARGETS.get(seed, module) if generator == "withheld" else module
+
+
 def _error_result(bag_id: str, vehicle: str, reason: str, seconds: float) -> dict[str, Any]:
     """The result of a bag whose diagnosis failed: scored as an error, with its reason in the verdict."""
     return {
@@ -766,9 +775,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise InputError(str(exc)) from exc
     scores = score(suite, results)
     context = {
-        "command": MAKE_TARGETS.get(args.seed, f"python -m terrain_analysis.tools.validate_sim2real --seed {args.seed}")
-        if args.generator == "withheld"
-        else f"python -m terrain_analysis.tools.validate_sim2real --generator {args.generator} --seed {args.seed}",
+        "command": run_command(args.generator, args.seed, args.vehicle),
         "date": time.strftime("%Y-%m-%d"),
         "wall": time.monotonic() - started,
         "jobs": args.jobs,
