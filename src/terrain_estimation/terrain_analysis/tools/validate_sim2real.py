@@ -51,6 +51,19 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from terrain_analysis.tools.validate_sim2real_signature import (
+    SIGNATURE_BINS,
+    VISIBLE_SNR,
+    bin_names,
+    effect_signature_markdown,
+    miss_signature,
+    miss_tag,
+    pct,
+    signature_markdown,
+    stratified,
+    structure_right,
+    visible_structural,
+)
 from terrain_estimation.cli import InputError, cli_main
 
 __all__ = [
@@ -84,18 +97,6 @@ GENERATORS = {"withheld": "vehicle_sim.tools.withheld", "independent": "vehicle_
 """Suite generators (``--generator``): the catalogue's own plants, or the independent code path (issue 22, item 7)."""
 INDEPENDENT_VEHICLES = ("quarter_car", "skid_steer")
 """Vehicles the independent generator simulates."""
-
-VISIBLE_SNR = 3.0
-"""Signature SNR from which an ideal (matched-filter) detector could see the withheld effect."""
-
-SIGNATURE_BINS: tuple[tuple[str, float, float], ...] = (
-    ("SNR < 3", 0.0, 3.0),
-    ("3–10", 3.0, 10.0),
-    ("10–30", 10.0, 30.0),
-    ("≥ 30", 30.0, math.inf),
-)
-"""Bins of the effect signature's SNR (labels.json ``signature``, measured by the generator)."""
-UNKNOWN_BIN = "unknown"
 
 
 # ---------------------------------------------------------------------------
@@ -240,96 +241,12 @@ def _predicted(r: dict[str, Any]) -> str:
     return "error"
 
 
-def _snr(lab: dict[str, Any]) -> float | None:
-    """The label's signature SNR (None: no signature, e.g. labels written before it existed)."""
-    sig = lab.get("signature")
-    if not isinstance(sig, dict) or sig.get("snr") is None:
-        return None
-    return float(sig["snr"])
-
-
-def _bin(lab: dict[str, Any]) -> str:
-    snr = _snr(lab)
-    if snr is None or not math.isfinite(snr):
-        return UNKNOWN_BIN
-    return next(name for name, lo, hi in SIGNATURE_BINS if lo <= snr < hi)
-
-
-def _top1_right(lab: dict[str, Any], r: dict[str, Any]) -> bool:
-    return r["kind"] == "explained" and bool(r["explained_by"]) and r["explained_by"][0] == lab["effect"]
-
-
-def _stratified(effect_rows: Sequence[tuple[dict[str, Any], dict[str, Any]]]) -> dict[str, Any]:
-    """Top-1 of the effect bags per signature bin, over the bags an ideal detector could see, and per effect."""
-    bins: dict[str, dict[str, Any]] = {}
-    for name in [b[0] for b in SIGNATURE_BINS] + [UNKNOWN_BIN]:
-        rows = [(lab, r) for lab, r in effect_rows if _bin(lab) == name]
-        if rows or name != UNKNOWN_BIN:
-            right = sum(_top1_right(lab, r) for lab, r in rows)
-            bins[name] = {"n": len(rows), "right": right, "top1": right / len(rows) if rows else math.nan}
-    visible = [(lab, r) for lab, r in effect_rows if (_snr(lab) or 0.0) >= VISIBLE_SNR]
-    right_visible = sum(_top1_right(lab, r) for lab, r in visible)
-    # Issue 22: an effect the bag cannot show is reported as such, never as a confident wrong name.
-    with_snr = [(lab, r, _snr(lab)) for lab, r in effect_rows]
-    unseen = [(lab, r) for lab, r, snr in with_snr if snr is not None and snr < VISIBLE_SNR]
-    named_wrong = sum(r["kind"] == "explained" and lab["effect"] not in r["explained_by"] for lab, r in unseen)
-    listed = sum(lab["effect"] in (r.get("not_identifiable") or []) for lab, r in unseen)
-    per_effect: dict[str, dict[str, Any]] = {}
-    for effect in sorted({lab["effect"] for lab, _ in effect_rows}):
-        rows = [(lab, r) for lab, r in effect_rows if lab["effect"] == effect]
-        cells: dict[str, dict[str, int]] = {}
-        for lab, r in rows:
-            cell = cells.setdefault(_bin(lab), {"n": 0, "right": 0})
-            cell["n"] += 1
-            cell["right"] += int(_top1_right(lab, r))
-        snrs = [x for x in (_snr(lab) for lab, _ in rows) if x is not None]
-        per_effect[effect] = {"bins": cells, "median_snr": statistics.median(snrs) if snrs else math.nan}
-    return {
-        "signature_bins": bins,
-        "visible": {
-            "n": len(visible),
-            "right": right_visible,
-            "top1": right_visible / len(visible) if visible else math.nan,
-            "unknown": sum(_snr(lab) is None for lab, _ in effect_rows),
-        },
-        "unseen": {
-            "n": len(unseen),
-            "named_wrong": named_wrong,
-            "not_named_wrong": 1.0 - named_wrong / len(unseen) if unseen else math.nan,
-            "listed_not_identifiable": listed,
-        },
-        "per_effect_signature": per_effect,
-    }
-
-
-def _miss_signature(lab: dict[str, Any]) -> dict[str, Any] | None:
-    sig = lab.get("signature")
-    if lab["kind"] == "control":
-        return None
-    if not isinstance(sig, dict):
-        return {"snr": None, "most_affected": None}
-    return {"snr": sig.get("snr"), "most_affected": sig.get("most_affected")}
-
-
 def _control_name(label: Mapping[str, Any]) -> str:
     """``"control"``, or ``"control (E road)"`` for a rough-road control (shown apart in the confusion matrix)."""
     road = str((label.get("scenario") or {}).get("scenario.road", ""))
     from vehicle_sim.tools.withheld import ROUGH_ROADS  # the generator's road classes (a constant, not a label)
 
     return f"control ({road} road)" if road in ROUGH_ROADS else "control"
-
-
-def _visible_structural(rows: Sequence[tuple[dict[str, Any], dict[str, Any]]]) -> dict[str, Any]:
-    """Structure-gap controls an ideal detector could see (signature SNR ≥ :data:`VISIBLE_SNR`): how many, and
-    the share read as "structure differs" (below it, "no significant gap" is what the bag shows)."""
-    seen = [r for lab, r in rows if (snr := _snr(lab)) is not None and snr >= VISIBLE_SNR]
-    right = sum(_structure_right(r) for r in seen)
-    return {"n": len(seen), "right": right, "structural": right / len(seen) if seen else math.nan}
-
-
-def _structure_right(r: Mapping[str, Any]) -> bool:
-    """A structure-gap control is scored right when the verdict is "the model's structure differs"."""
-    return r.get("kind") == "structure_differs"
 
 
 def _truth_name(label: Mapping[str, Any]) -> str:
@@ -428,8 +345,8 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "ooc_not_confident": frac(sum(r["kind"] != "explained" for _, r in ooc), len(ooc)),
             "ooc_structural": frac(sum(r["kind"] == "structure_differs" for _, r in ooc), len(ooc)),
             "structure_controls": len(structure),
-            "structure_structural": frac(sum(_structure_right(r) for _, r in structure), len(structure)),
-            "structure_visible": _visible_structural(structure),
+            "structure_structural": frac(sum(structure_right(r) for _, r in structure), len(structure)),
+            "structure_visible": visible_structural(structure),
             "interval_coverage": frac(covered, intervals),
             "intervals": intervals,
             "median_shrinkage": statistics.median(shrink) if shrink else math.nan,
@@ -443,18 +360,18 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
                     "truth": _truth_name(lab),
                     "parameters": lab.get("parameters") or lab.get("out_of_catalogue_parameters"),
                     "verdict": r["verdict"],
-                    "signature": _miss_signature(lab),
+                    "signature": miss_signature(lab),
                 }
                 for lab, r in rows
                 if not (
                     (lab["kind"] == "effect" and r["kind"] == "explained" and r["explained_by"][0] == lab["effect"])
                     or (lab["kind"] == "control" and r["kind"] == "no_gap")
                     or (lab["kind"] == "out_of_catalogue" and r["kind"] != "explained")
-                    or (lab["kind"] == "structure_control" and _structure_right(r))
+                    or (lab["kind"] == "structure_control" and structure_right(r))
                 )
             ],
         }
-        out[vehicle].update(_stratified(effect_rows))
+        out[vehicle].update(stratified(effect_rows))
     every = [r for rows in by_vehicle.values() for r in rows]
     if len(by_vehicle) > 1:
         eff = [(lab, r) for lab, r in every if lab["kind"] == "effect"]
@@ -475,95 +392,15 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
             else math.nan,
             "median_shrinkage": statistics.median(sh) if sh else math.nan,
             "structure_controls": len(struct_all),
-            "structure_visible": _visible_structural(struct_all),
-            "structure_structural": sum(_structure_right(r) for _, r in struct_all) / len(struct_all)
+            "structure_visible": visible_structural(struct_all),
+            "structure_structural": sum(structure_right(r) for _, r in struct_all) / len(struct_all)
             if struct_all
             else math.nan,
         }
-        stratified = _stratified(eff)
-        del stratified["per_effect_signature"]  # effect names are per vehicle
-        out["all"].update(stratified)
+        strat = stratified(eff)
+        del strat["per_effect_signature"]  # effect names are per vehicle
+        out["all"].update(strat)
     return out
-
-
-def _pct(x: float) -> str:
-    return "–" if not math.isfinite(x) else f"{100 * x:.1f} %"
-
-
-def _bin_names(scores: dict[str, Any]) -> list[str]:
-    names = [b[0] for b in SIGNATURE_BINS]
-    if any(s.get("signature_bins", {}).get(UNKNOWN_BIN, {}).get("n") for s in scores.values()):
-        names.append(UNKNOWN_BIN)
-    return names
-
-
-def _signature_markdown(scores: dict[str, Any]) -> list[str]:
-    """Top-1 per signature bin, per vehicle and over all (empty for scores without the stratification)."""
-    if not any("signature_bins" in s for s in scores.values()):
-        return []
-    names = _bin_names(scores)
-    header = {"SNR < 3": "SNR < 3 (below what an ideal detector could see)"}
-    lines = [
-        "",
-        "### Top-1 by effect signature",
-        "",
-        "The signature of a bag is measured by the generator, never shown to the diagnosis (labels.json): the bag "
-        "minus its twin (the same plan with the effect off and the same noise realisation), per noisy sensor "
-        "channel of the vehicle's responses (IMUs; rover also load cells and velocimeter; not the inputs a "
-        "replay is driven by, road profile and drive encoders, nor the GNSS fix), over the noise σ of that "
-        "channel (from two nominal runs differing only in the noise seed). "
-        "SNR = sqrt(Σ channels Σ samples (Δ/σ)²) is what an ideal matched-filter detector, knowing the effect's "
-        "shape and magnitude, would see in white sensor noise; below 3 there was (almost) nothing to see. It is "
-        "an upper bound: the diagnosis also has to separate the effect from what it does not know and fits "
-        "(soil stiffness, road, initial state): an effect a nuisance absorbs (a nonlinear soil about its static "
-        "point against a fitted k_s) keeps a large SNR here. Each channel's share is in labels.json.",
-        "",
-        "| vehicle | " + " | ".join(header.get(n, n) for n in names) + " | SNR ≥ 3 |",
-        "|---|" + "---|" * (len(names) + 1),
-    ]
-    for vehicle, s in scores.items():
-        if "signature_bins" not in s:
-            continue
-        bins = s["signature_bins"]
-        cells = [f"{_pct(bins[n]['top1'])} of {bins[n]['n']}" if bins.get(n, {}).get("n") else "–" for n in names]
-        v = s["visible"]
-        label = "**all**" if vehicle == "all" else vehicle
-        lines.append(f"| {label} | " + " | ".join(cells) + f" | {_pct(v['top1'])} of {v['n']} |")
-    return lines
-
-
-def _effect_signature_markdown(s: dict[str, Any], names: Sequence[str]) -> list[str]:
-    """One vehicle's top-1 per effect and signature bin."""
-    if "per_effect_signature" not in s:
-        return []
-    lines = [
-        "",
-        "Top-1 per effect and signature bin (right / bags; median SNR):",
-        "",
-        "| effect | " + " | ".join(names) + " | median SNR |",
-        "|---|" + "---|" * (len(names) + 1),
-    ]
-    for effect, e in s["per_effect_signature"].items():
-        cells = [f"{e['bins'][n]['right']}/{e['bins'][n]['n']}" if n in e["bins"] else "" for n in names]
-        median = e["median_snr"]
-        lines.append(
-            f"| {effect} | " + " | ".join(cells) + f" | {_snr_text(median) if math.isfinite(median) else '–'} |"
-        )
-    return lines
-
-
-def _snr_text(x: float) -> str:
-    return f"{x:.2g}" if x < 10 else (f"{x:.0f}" if x < 1e5 else f"{x:.1e}")
-
-
-def _miss_tag(m: dict[str, Any]) -> str:
-    sig = m.get("signature")
-    if sig is None:
-        return ""
-    if sig.get("snr") is None:
-        return " [signature unknown]"
-    most = sig.get("most_affected") or "no channel changed"
-    return f" [SNR {_snr_text(float(sig['snr']))}, most affected: {most}]"
 
 
 def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
@@ -600,16 +437,16 @@ def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
         if vehicle == "all":
             continue
         lines.append(
-            f"| {vehicle} | {s['bags']} | {_pct(s['top1'])} of {s['effect_bags']} | {_pct(s['ranked_first'])} | "
-            f"{_pct(s['controls_no_gap'])} of {s['controls']} | {_pct(s['ooc_not_confident'])} of {s['ooc']} | "
-            f"{_pct(s['median_shrinkage'])} | {s['errors']} | {s['median_seconds']:.1f} s |"
+            f"| {vehicle} | {s['bags']} | {pct(s['top1'])} of {s['effect_bags']} | {pct(s['ranked_first'])} | "
+            f"{pct(s['controls_no_gap'])} of {s['controls']} | {pct(s['ooc_not_confident'])} of {s['ooc']} | "
+            f"{pct(s['median_shrinkage'])} | {s['errors']} | {s['median_seconds']:.1f} s |"
         )
     if "all" in scores:
         s = scores["all"]
         lines.append(
-            f"| **all** | {s['bags']} | {_pct(s['top1'])} of {s['effect_bags']} |  | "
-            f"{_pct(s['controls_no_gap'])} of {s['controls']} | {_pct(s['ooc_not_confident'])} of {s['ooc']} | "
-            f"{_pct(s['median_shrinkage'])} |  |  |"
+            f"| **all** | {s['bags']} | {pct(s['top1'])} of {s['effect_bags']} |  | "
+            f"{pct(s['controls_no_gap'])} of {s['controls']} | {pct(s['ooc_not_confident'])} of {s['ooc']} | "
+            f"{pct(s['median_shrinkage'])} |  |  |"
         )
     lines += [
         "",
@@ -623,8 +460,8 @@ def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
         if vehicle == "all" or "interval_coverage" not in s:
             continue
         lines.append(
-            f"| {vehicle} | {_pct(s['interval_coverage'])} of {s['intervals']} | "
-            f"{_pct(s['ooc_structural'])} of {s['ooc']} |"
+            f"| {vehicle} | {pct(s['interval_coverage'])} of {s['intervals']} | "
+            f"{pct(s['ooc_structural'])} of {s['ooc']} |"
         )
     overall: dict[str, Any] = scores.get("all") or next(iter(scores.values()), {})
     lines += ["", "Must-show (issue 6), over the vehicles above:", ""]
@@ -637,14 +474,12 @@ def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
     for key, target in TARGETS.items():
         value = overall.get(key, math.nan)
         ok = math.isfinite(value) and value >= target
-        lines.append(
-            f"- {names[key]}: {_pct(value)} (target ≥ {100 * target:.0f} %) — **{'met' if ok else 'NOT met'}**"
-        )
+        lines.append(f"- {names[key]}: {pct(value)} (target ≥ {100 * target:.0f} %) — **{'met' if ok else 'NOT met'}**")
     if overall.get("structure_controls"):
         value = overall["structure_structural"]
         ok = math.isfinite(value) and value >= STRUCTURE_TARGET
         lines.append(
-            f'- structure-gap controls reported as "structure differs" (issue 22): {_pct(value)} of '
+            f'- structure-gap controls reported as "structure differs" (issue 22): {pct(value)} of '
             f"{overall['structure_controls']} (target ≥ {100 * STRUCTURE_TARGET:.0f} %) — "
             f"**{'met' if ok else 'NOT met'}**"
         )
@@ -652,14 +487,14 @@ def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
         if seen and seen["n"] != overall["structure_controls"]:
             lines.append(
                 f"  (not a target: over the {seen['n']} whose difference an ideal detector could see, SNR ≥ "
-                f"{VISIBLE_SNR:g}: {_pct(seen['structural'])})"
+                f"{VISIBLE_SNR:g}: {pct(seen['structural'])})"
             )
     unseen = overall.get("unseen")
     if unseen is not None and unseen["n"]:
         ok = unseen["named_wrong"] == 0
         lines.append(
             f"- effects an ideal detector could not see (SNR < {VISIBLE_SNR:g}) never named wrongly "
-            f"(issue 22): {_pct(unseen['not_named_wrong'])} of {unseen['n']} (target 100 %; "
+            f"(issue 22): {pct(unseen['not_named_wrong'])} of {unseen['n']} (target 100 %; "
             f"{unseen['named_wrong']} named as another effect, {unseen['listed_not_identifiable']} with the effect "
             f'listed "not identifiable from this bag") — **{"met" if ok else "NOT met"}**'
         )
@@ -669,7 +504,7 @@ def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
         lines += [
             "",
             f"Not a target (the one above stays on all bags): top-1 attribution over bags whose effect an ideal "
-            f"detector could see (SNR ≥ {VISIBLE_SNR:g}): {_pct(visible['top1'])} of {visible['n']}{unknown}.",
+            f"detector could see (SNR ≥ {VISIBLE_SNR:g}): {pct(visible['top1'])} of {visible['n']}{unknown}.",
         ]
     lines += [
         "",
@@ -677,7 +512,7 @@ def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
         'pair). "Ranked first" is the held-out ranking\'s first place whatever the verdict; "in the '
         'indistinguishable set" is reported per vehicle in the JSON.',
     ]
-    lines += _signature_markdown(scores)
+    lines += signature_markdown(scores)
     for vehicle, s in scores.items():
         if vehicle == "all":
             continue
@@ -688,14 +523,14 @@ def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
         for truth in sorted(s["confusion"]):
             row = s["confusion"][truth]
             lines.append(f"| {truth} | " + " | ".join(str(row.get(c, "")) for c in cols) + " |")
-        lines += _effect_signature_markdown(s, _bin_names(scores))
+        lines += effect_signature_markdown(s, bin_names(scores))
         if s["misses"]:
             lines += ["", "<details><summary>Misses</summary>", ""]
             for m in s["misses"]:
                 params = json.dumps(m["parameters"], ensure_ascii=False)
                 if len(params) > 160:
                     params = params[:157] + "…"
-                lines.append(f"- `{m['id']}` truth {m['truth']} {params}{_miss_tag(m)}: {m['verdict']}")
+                lines.append(f"- `{m['id']}` truth {m['truth']} {params}{miss_tag(m)}: {m['verdict']}")
             lines += ["", "</details>"]
     return "\n".join(lines) + "\n"
 
