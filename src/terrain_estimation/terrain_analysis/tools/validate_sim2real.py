@@ -62,6 +62,7 @@ from terrain_analysis.tools.validate_sim2real_signature import (
     signature_markdown,
     stratified,
     structure_right,
+    top1_right,
     visible_structural,
 )
 from terrain_estimation.cli import InputError, cli_main
@@ -306,9 +307,7 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
         controls = [(lab, r) for lab, r in rows if lab["kind"] == "control"]
         ooc = [(lab, r) for lab, r in rows if lab["kind"] == "out_of_catalogue"]
         structure = [(lab, r) for lab, r in rows if lab["kind"] == "structure_control"]
-        right = [
-            (lab, r) for lab, r in effect_rows if r["kind"] == "explained" and r["explained_by"][0] == lab["effect"]
-        ]
+        right = [(lab, r) for lab, r in effect_rows if top1_right(lab, r)]
         ranked_first = [(lab, r) for lab, r in effect_rows if r["ranking"][:1] == [lab["effect"]]]
         in_set = [
             (lab, r)
@@ -324,9 +323,7 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
         per_effect: dict[str, dict[str, int]] = defaultdict(lambda: {"n": 0, "right": 0})
         for lab, r in effect_rows:
             per_effect[lab["effect"]]["n"] += 1
-            per_effect[lab["effect"]]["right"] += int(
-                r["kind"] == "explained" and r["explained_by"][0] == lab["effect"]
-            )
+            per_effect[lab["effect"]]["right"] += int(top1_right(lab, r))
 
         def frac(a: int, b: int) -> float:
             return a / b if b else math.nan
@@ -364,7 +361,7 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
                 }
                 for lab, r in rows
                 if not (
-                    (lab["kind"] == "effect" and r["kind"] == "explained" and r["explained_by"][0] == lab["effect"])
+                    (lab["kind"] == "effect" and top1_right(lab, r))
                     or (lab["kind"] == "control" and r["kind"] == "no_gap")
                     or (lab["kind"] == "out_of_catalogue" and r["kind"] != "explained")
                     or (lab["kind"] == "structure_control" and structure_right(r))
@@ -378,7 +375,7 @@ def score(suite: Path, results: Sequence[dict[str, Any]]) -> dict[str, Any]:
         ctl = [(lab, r) for lab, r in every if lab["kind"] == "control"]
         ooc_all = [(lab, r) for lab, r in every if lab["kind"] == "out_of_catalogue"]
         struct_all = [(lab, r) for lab, r in every if lab["kind"] == "structure_control"]
-        right_all = [(lab, r) for lab, r in eff if r["kind"] == "explained" and r["explained_by"][0] == lab["effect"]]
+        right_all = [(lab, r) for lab, r in eff if top1_right(lab, r)]
         sh = [float(r["best"]["shrinkage"]["overall"]) for _, r in right_all if r.get("best")]
         out["all"] = {
             "bags": len(every),

@@ -63,6 +63,7 @@ def _bin(lab: dict[str, Any]) -> str:
 
 
 def top1_right(lab: dict[str, Any], r: dict[str, Any]) -> bool:
+    """Top-1: the verdict is "explained by X" with X the label's effect (the first of a pair)."""
     return r["kind"] == "explained" and bool(r["explained_by"]) and r["explained_by"][0] == lab["effect"]
 
 
@@ -77,8 +78,7 @@ def stratified(effect_rows: Sequence[tuple[dict[str, Any], dict[str, Any]]]) -> 
     visible = [(lab, r) for lab, r in effect_rows if (_snr(lab) or 0.0) >= VISIBLE_SNR]
     right_visible = sum(top1_right(lab, r) for lab, r in visible)
     # Issue 22: an effect the bag cannot show is reported as such, never as a confident wrong name.
-    with_snr = [(lab, r, _snr(lab)) for lab, r in effect_rows]
-    unseen = [(lab, r) for lab, r, snr in with_snr if snr is not None and snr < VISIBLE_SNR]
+    unseen = [(lab, r) for lab, r in effect_rows if (snr := _snr(lab)) is not None and snr < VISIBLE_SNR]
     named_wrong = sum(r["kind"] == "explained" and lab["effect"] not in r["explained_by"] for lab, r in unseen)
     listed = sum(lab["effect"] in (r.get("not_identifiable") or []) for lab, r in unseen)
     per_effect: dict[str, dict[str, Any]] = {}
