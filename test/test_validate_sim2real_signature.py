@@ -96,7 +96,7 @@ def test_scores_are_stratified_by_signature(tmp_path: Path) -> None:
     text = score_markdown(scores, CONTEXT)
     assert "top-1 attribution for single effects: 50.0 % (target ≥ 90 %) — **NOT met**" in text
     assert "bags whose effect an ideal detector could see (SNR ≥ 3): 75.0 % of 4." in text
-    assert "could not see (SNR < 3) never named wrongly (issue 22): 100.0 % of 2 (target 100 %; 0 named" in text
+    assert "not identifiable from the bag) never named wrongly (issue 22): 100.0 % of 2 (target 100 %; 0 named" in text
     assert "| **all** | 0.0 % of 2 | 100.0 % of 1 | 0.0 % of 1 | 100.0 % of 2 | 75.0 % of 4 |" in text
     assert "| sensor_delay | 0/1 | 1/1 |  |  | 2.5 |" in text
     assert (
@@ -144,23 +144,29 @@ def test_rough_road_controls_are_shown_apart_and_counted_as_controls(tmp_path: P
 
 def test_an_unseen_effect_named_as_another_is_counted(tmp_path: Path) -> None:
     """A bag whose effect an ideal detector could not see, confidently explained by another effect: the
-    must-show 'never a confident wrong name' is not met; one listed 'not identifiable' is counted as such."""
+    must-show 'never a confident wrong name' is not met; one listed 'not identifiable' is counted as such. An
+    effect the diagnosis lists as not identifiable from the bag (a replay that cannot model it, at any SNR) is
+    one the bag cannot show too: named as another effect, it counts as named wrongly."""
     suite, results = _suite(tmp_path)
     labels = json.loads((suite / "labels.json").read_text())
     labels["labels"]["c1"] = _label("rover", "effect", "sensor_delay", 1.5)
     labels["labels"]["c2"] = _label("rover", "effect", "sensor_delay", 2.0)
+    labels["labels"]["v1"] = _label("rover", "effect", "vertical_velocity", 4809.0)
+    labels["labels"]["v2"] = _label("rover", "effect", "vertical_velocity", 6646.0)
     (suite / "labels.json").write_text(json.dumps(labels))
     wrong = _result("c1", "rover", "explained", ["imu_bias"])
     listed = dict(_result("c2", "rover", "no_gap"), not_identifiable=["sensor_delay"])
-    scores = score(suite, [*results, wrong, listed])
+    declared_wrong = dict(_result("v1", "rover", "explained", ["soil_change"]), not_identifiable=["vertical_velocity"])
+    declared = dict(_result("v2", "rover", "no_gap"), not_identifiable=["vertical_velocity"])
+    scores = score(suite, [*results, wrong, listed, declared_wrong, declared])
     assert scores["rover"]["unseen"] == {
-        "n": 3,
-        "named_wrong": 1,
-        "not_named_wrong": pytest.approx(2 / 3),
-        "listed_not_identifiable": 1,
+        "n": 5,
+        "named_wrong": 2,
+        "not_named_wrong": pytest.approx(3 / 5),
+        "listed_not_identifiable": 3,
     }
     text = score_markdown(scores, CONTEXT)
-    assert "never named wrongly (issue 22): 75.0 % of 4 (target 100 %; 1 named as another effect, 1 with" in text
+    assert "never named wrongly (issue 22): 66.7 % of 6 (target 100 %; 2 named as another effect, 3 with" in text
     assert "— **NOT met**" in text.split("never named wrongly", 1)[1].splitlines()[0]
 
 

@@ -490,7 +490,8 @@ def score_markdown(scores: dict[str, Any], context: dict[str, Any]) -> str:
     if unseen is not None and unseen["n"]:
         ok = unseen["named_wrong"] == 0
         lines.append(
-            f"- effects an ideal detector could not see (SNR < {VISIBLE_SNR:g}) never named wrongly "
+            f"- effects a bag cannot show (an ideal detector could not see them, SNR < {VISIBLE_SNR:g}, or the "
+            "diagnosis lists them as not identifiable from the bag) never named wrongly "
             f"(issue 22): {pct(unseen['not_named_wrong'])} of {unseen['n']} (target 100 %; "
             f"{unseen['named_wrong']} named as another effect, {unseen['listed_not_identifiable']} with the effect "
             f'listed "not identifiable from this bag") — **{"met" if ok else "NOT met"}**'
