@@ -138,8 +138,59 @@ def test_vehicle_configs_state_the_tolerances() -> None:
     values = tolerances("skid_steer", REPO / "config" / "skid_steer.yaml")
     assert values["tolerance.rolling_resistance"] == pytest.approx(0.02)
     # The rover's sinkage: its soil's k_c, k_phi, n known to tens of per cent, the replay's sinkage_scale fitted.
-    assert tolerances("rover", REPO / "config" / "rover.yaml") == {"tolerance.sinkage": pytest.approx(0.2)}
+    # ... and its soil's own parameters, which a soil_change within them does not exceed (a "within" test).
+    assert tolerances("rover", REPO / "config" / "rover.yaml") == {
+        "tolerance.sinkage": pytest.approx(0.2),
+        "tolerance.soil_cohesion": pytest.approx(0.5),
+        "tolerance.soil_friction_angle": pytest.approx(0.035),
+        "tolerance.soil_modulus": pytest.approx(0.3),
+        "tolerance.soil_shear_modulus": pytest.approx(0.3),
+    }
     assert nuisance_names(tolerances("rover")) == ("sinkage_scale",)
+
+
+def test_a_soil_change_within_the_soils_tolerance_is_not_a_gap() -> None:
+    """A rover soil_change whose soil after the change lies within 2 tolerances of the soil before it is the
+    soil's own tolerance, wherever it sits: the validation's rover controls on the sharp step read 'explained by
+    soil_change' at 0.1 m and at 9e-6 m (the config's soil itself) with a cohesion scale 0.21-0.42 that the data
+    barely constrain (σ 0.25) and friction +0.014 rad. The change's distance is free in the test; a change
+    beyond a tolerance on any magnitude is still a gap."""
+    from types import SimpleNamespace
+
+    from terrain_analysis.sim2real.model import candidates_from_catalogue
+    from terrain_analysis.sim2real.tolerance import within_tolerance
+
+    model = ToleratedModel(
+        SimpleNamespace(nuisance=[], candidates=candidates_from_catalogue("rover"), notes=[]),  # type: ignore[arg-type]
+        tolerances("rover", REPO / "config" / "rover.yaml"),
+    )
+    control = {
+        "soil_change_distance": 0.1011,
+        "soil_change_cohesion_scale": 0.2131,
+        "soil_change_friction_angle_change": 0.01396,
+        "soil_change_modulus_scale": 0.9988,
+        "soil_change_shear_modulus_scale": 1.0166,
+    }
+    rows = within_tolerance(model, {"soil_change": control})
+    assert [r["parameter"] for r in rows] == [
+        "soil_change.soil_change_cohesion_scale",
+        "soil_change.soil_change_friction_angle_change",
+        "soil_change.soil_change_modulus_scale",
+        "soil_change.soil_change_shear_modulus_scale",
+    ]
+    assert within_tolerance(model, {"soil_change": dict(control, soil_change_distance=0.0)})
+    # The suite's soil changes: friction ± 0.05-0.15 rad, moduli × 0.3-0.7 or more: gaps.
+    for name, value in (
+        ("soil_change_cohesion_scale", 2.607),
+        ("soil_change_friction_angle_change", -0.0862),
+        ("soil_change_modulus_scale", 1.746),
+        ("soil_change_shear_modulus_scale", 0.39),
+    ):
+        assert within_tolerance(model, {"soil_change": dict(control, **{name: value})}) == [], name
+    # Another effect, or a vehicle without the soil's tolerances: no within test.
+    assert within_tolerance(model, {"load_cell_crosstalk": {"load_cell_crosstalk": 0.001}}) == []
+    plain = ToleratedModel(model.wrapped, {"tolerance.sinkage": 0.2})
+    assert within_tolerance(plain, {"soil_change": control}) == []
 
 
 def test_skid_steer_rolling_resistance_within_tolerance_is_not_a_gap() -> None:

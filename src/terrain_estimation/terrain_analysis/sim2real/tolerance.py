@@ -55,6 +55,7 @@ from terrain_analysis.sim2real.model import Candidate, Channel, FitParameter, Re
 from terrain_estimation.params import ParamSpec, default_config_path, load_parameter_file, resolve_parameters
 
 __all__ = [
+    "LOCATION_PARAMETERS",
     "SECTION",
     "SPECS",
     "TARGETS",
@@ -85,7 +86,16 @@ TARGETS: Mapping[str, tuple[str, str]] = {
     "tolerance.friction": ("nuisance", "friction_scale"),
     "tolerance.yaw_inertia": ("nuisance", "yaw_inertia_scale"),
     "tolerance.sinkage": ("nuisance", "sinkage_scale"),
+    "tolerance.soil_cohesion": ("within", "soil_change.soil_change_cohesion_scale"),
+    "tolerance.soil_friction_angle": ("within", "soil_change.soil_change_friction_angle_change"),
+    "tolerance.soil_modulus": ("within", "soil_change.soil_change_modulus_scale"),
+    "tolerance.soil_shear_modulus": ("within", "soil_change.soil_change_shear_modulus_scale"),
 }
+
+#: Parameters that say *where* an effect acts, not how large it is: free in the within-tolerance test of the
+#: effect's magnitudes (:func:`within_tolerance`). A soil that changes beyond some distance by less than the
+#: soil's tolerances is a soil within its tolerance wherever the change sits (at 0: the config's soil itself).
+LOCATION_PARAMETERS: frozenset[str] = frozenset({"soil_change.soil_change_distance"})
 
 _MASS = ParamSpec(
     "tolerance.sprung_mass",
@@ -167,6 +177,51 @@ SPECS: Mapping[str, tuple[ParamSpec, ...]] = {
             0.0,
             1.0,
         ),
+        # The soil's own parameters (the scenario soil the replay runs on): a handbook entry for the soil type, and
+        # a natural soil varies along a traverse. Inherent variability of strength parameters, as coefficients of
+        # variation (Phoon & Kulhawy 1999, Can. Geotech. J. 36; Cherubini 1997): friction angle of sands 5-15 %,
+        # cohesion / undrained strength 10-55 %; the moduli follow the sinkage tolerance. A soil_change whose
+        # after-soil is within 2 of these of the soil before it reads "no significant gap (within nominal
+        # tolerance)", not "explained by soil_change": wherever it sits (at 0 it is the config's soil itself).
+        ParamSpec(
+            "tolerance.soil_cohesion",
+            0.5,
+            "[-] relative tolerance (1 sigma) of the soil's cohesion c (soil.cohesion; the soil_change effect's "
+            "cohesion scale): handbook cohesions of one soil type differ by a factor 2 between tests and a "
+            "traverse's soil varies along it (strength COV 10-55 %); within 2 sigma a soil_change is the soil's "
+            "tolerance, not a gap; 0: known exactly",
+            0.0,
+            2.0,
+        ),
+        ParamSpec(
+            "tolerance.soil_friction_angle",
+            0.035,
+            "[rad] absolute tolerance (1 sigma) of the soil's internal friction angle phi (soil.friction_angle; the "
+            "soil_change effect's friction-angle change): 2 deg, the lower end of a sand's inherent variability "
+            "(COV 5-15 % of 30-35 deg); within 2 sigma a soil_change is the soil's tolerance, not a gap; 0: known "
+            "exactly",
+            0.0,
+            0.3,
+        ),
+        ParamSpec(
+            "tolerance.soil_modulus",
+            0.3,
+            "[-] relative tolerance (1 sigma) of the pressure-sinkage moduli k1, k2 (soil.pressure_sinkage_k1/_k2; "
+            "the soil_change effect's modulus scale): the steady sinkage goes as k^(-2/(2n+1)), so with n near 1 "
+            "this is the 0.2 of tolerance.sinkage; within 2 sigma a soil_change is the soil's tolerance, not a gap; "
+            "0: known exactly",
+            0.0,
+            2.0,
+        ),
+        ParamSpec(
+            "tolerance.soil_shear_modulus",
+            0.3,
+            "[-] relative tolerance (1 sigma) of the shear deformation modulus K (soil.shear_deformation_modulus; the "
+            "soil_change effect's shear-modulus scale): measured K of one soil type spread by tens of per cent; "
+            "within 2 sigma a soil_change is the soil's tolerance, not a gap; 0: known exactly",
+            0.0,
+            2.0,
+        ),
     ),
 }
 
@@ -223,6 +278,8 @@ class ToleratedModel:
         self._effect_nuisance: dict[str, tuple[str, str]] = {}
         #: "effect.parameter" → (off, tolerance) of the ("within", …) targets (:func:`within_tolerance`).
         self.within: dict[str, tuple[float, float]] = {}
+        #: The :data:`LOCATION_PARAMETERS` of the effects with a within target: free in the within test.
+        self.within_free: set[str] = set()
         by_name = {p.name: p for p in model.nuisance}
         nuisance: list[FitParameter] = []
         tolerated: dict[str, float] = {}
@@ -240,11 +297,12 @@ class ToleratedModel:
             effect, param = target.split(".", 1)
             cand = model.candidates.get(effect)
             p = next((q for q in cand.parameters if q.name == param), None) if cand is not None else None
-            if p is None:
+            if cand is None or p is None:
                 self.skipped.append(f"{key} ({target} is not a candidate of this replay)")
                 continue
             if kind == "within":
                 self.within[target] = (p.off, tol)
+                self.within_free |= {f"{effect}.{q.name}" for q in cand.parameters} & LOCATION_PARAMETERS
                 self.applied.append(f"{target} within {WITHIN:g} × {tol:g}")
                 continue
             lo, hi = max(p.bounds[0], p.off - 3.0 * tol), min(p.bounds[1], p.off + 3.0 * tol)
@@ -358,14 +416,18 @@ def within_tolerance(model: ReplayModel, parameters: Mapping[str, Mapping[str, f
     ``parameters``: a fitted explanation ({effect: {parameter: value}}). Each of
     its parameters must be the error of a nominal parameter with a ("within",
     …) tolerance (:attr:`ToleratedModel.within`) and lie within
-    :data:`WITHIN` × that tolerance of its off value; otherwise ``[]`` (the
+    :data:`WITHIN` × that tolerance of its off value, or say where the effect
+    acts (:data:`LOCATION_PARAMETERS`, free); otherwise ``[]`` (the
     explanation is a gap).
     """
     within: Mapping[str, tuple[float, float]] = getattr(model, "within", None) or {}
+    free: set[str] = getattr(model, "within_free", None) or set()
     rows: list[dict[str, Any]] = []
     for effect, values in parameters.items():
         for name, value in values.items():
             key = f"{effect}.{name}"
+            if key in free:
+                continue
             if key not in within:
                 return []
             off, tol = within[key]
