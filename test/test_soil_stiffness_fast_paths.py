@@ -858,3 +858,55 @@ def test_tria_rows_is_tria_of_the_stacked_rows(k1: int, k2: int, n: int) -> None
         assert np.array_equal(got, expected) and np.array_equal(np.signbit(got), np.signbit(expected))
         assert np.array_equal(got, _tria_reference(np.concatenate((top, bottom)).T))
         assert np.array_equal(top, top_before) and np.array_equal(bottom, bottom_before)
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+@pytest.mark.parametrize("hostile", [False, True])
+@pytest.mark.parametrize("case", range(len(_STREAM_CONFIGS)))
+def test_profile_samples_in_bulk_are_taken_as_one_at_a_time(case: int, hostile: bool) -> None:
+    """add_profile_samples (an offline ride's lists, qc_runs) takes the samples add_profile_sample would take,
+    with the same buffers, and hands back the one it must not (rejected, or one that may complete a queued
+    step): the same estimates, counters and state as one call per sample, non-finite and out-of-order samples
+    and steps waiting for the road included."""
+    vehicle, extra = _STREAM_CONFIGS[case]
+    cfg = SoilStiffnessEstimatorConfig(vehicle=vehicle, **extra)
+    events = _stream(RNG_SEED + 120 + case, vehicle, hostile=hostile, seconds=2.0)
+    bulk, single = SoilStiffnessEstimator(cfg), SoilStiffnessEstimator(cfg)
+    got: list[Any] = []
+    want: list[Any] = []
+    handed_back = 0
+    i = 0
+    while i < len(events):
+        if events[i][0] == "a":
+            for est, out in ((bulk, got), (single, want)):
+                est.add_accelerations(*events[i][1:])
+                out.append([_estimate_key(e) for e in est.drain_estimates()])
+            i += 1
+            continue
+        stop = i
+        while stop < len(events) and events[stop][0] == "p":
+            stop += 1
+        t, s, h = ([ev[k] for ev in events[i:stop]] for k in (1, 2, 3))
+        j = 0
+        while j < len(t):
+            j = bulk.add_profile_samples(t, s, h, j, len(t))
+            if j < len(t):
+                bulk.add_profile_sample(t[j], s[j], h[j])
+                handed_back += 1
+                j += 1
+        for ev in events[i:stop]:
+            single.add_profile_sample(*ev[1:])
+        i = stop
+    got.append(bulk.counters)
+    want.append(single.counters)
+    assert got == want
+    assert (bulk._pt, bulk._ph, bulk._ps, bulk._last_distance) == (
+        single._pt,
+        single._ph,
+        single._ps,
+        single._last_distance,
+    )
+    assert bulk.counters.steps > 100 and handed_back > 0
+    if hostile:
+        assert bulk.counters.profile_rejected > 0

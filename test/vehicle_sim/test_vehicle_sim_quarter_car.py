@@ -1,5 +1,6 @@
 """Truth plant: quarter car (MODELS.md A.1) and LRV (A.7) on a soil spring."""
 
+import math
 import time
 
 import numpy as np
@@ -360,3 +361,22 @@ def test_simulate_speed_is_reported(capsys):
     elapsed = time.perf_counter() - start
     with capsys.disabled():
         print(f"\n[vehicle_sim] simulate(): 10 s 2-DOF at 10 m/s, ISO D -> {elapsed:.3f} s wall")
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+def test_speed_profile_of_one_time_is_the_array_forms_value_bit_for_bit() -> None:
+    """The plant asks v(t) and s(t) of one time three times a step: answered on floats, the array form's
+    arithmetic in its order, a numpy float64 as before; knots, extrapolation before 0, NaN and infinities."""
+    rng = np.random.default_rng(7)
+    profiles = [
+        SpeedProfile.constant(10.0),
+        SpeedProfile.piecewise_linear((0.0, 1.0, 2.5, 7.0), (0.0, 5.0, 3.0, 3.3)),
+        SpeedProfile.piecewise_linear((0.0, 0.3), (1.7, 0.0)),
+    ]
+    times = [*rng.uniform(-2.0, 12.0, 3000).tolist(), 0.0, -0.0, 1.0, 2.5, 7.0, 0.3, 3, math.nan, math.inf, -math.inf]
+    for profile in profiles:
+        for t in [*times, *np.float64(rng.uniform(0.0, 9.0, 50))]:
+            for method in (profile.speed, profile.distance):
+                got, want = method(t), method(np.asarray(float(t)))
+                assert type(got) is type(want) is np.float64
+                assert np.asarray(got).tobytes() == np.asarray(want).tobytes(), (method.__name__, t, got, want)

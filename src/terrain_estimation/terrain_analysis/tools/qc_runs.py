@@ -274,9 +274,14 @@ def run_one(spec: RunSpec) -> tuple[RunSpec, dict[str, Trace]]:
         j = 0
         n_prof = len(pt)
         for i, t in enumerate(t_acc):
-            while j < n_prof and pt[j] <= t + 1e-9:
-                est.add_profile_sample(pt[j], ps[j], ph[j])
-                j += 1
+            stop = j
+            while stop < n_prof and pt[stop] <= t + 1e-9:
+                stop += 1
+            while j < stop:  # each sample as add_profile_sample would take it, in bulk up to one that needs it
+                j = est.add_profile_samples(pt, ps, ph, j, stop)
+                if j < stop:
+                    est.add_profile_sample(pt[j], ps[j], ph[j])
+                    j += 1
             est.add_accelerations(t, body[i], wheel[i])
             for e in est.drain_estimates():
                 times.append(e.t)

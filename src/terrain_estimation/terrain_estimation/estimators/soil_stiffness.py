@@ -406,6 +406,31 @@ class SoilStiffnessEstimator(ProfileRoad, FilterSteps):
             self._last_distance = float(values[i - 1][0])
         return i
 
+    def add_profile_samples(
+        self, t: Sequence[float], distance: Sequence[float], elevation: Sequence[float], start: int, stop: int
+    ) -> int:
+        """:meth:`add_profile_sample` of the samples ``start`` … ``stop − 1`` (stamps in s), the same buffers and
+        arithmetic, up to the first one it would reject or that may complete a queued step: that one's index (not
+        taken; hand it to :meth:`add_profile_sample`), else ``stop``. For a caller holding the samples as lists
+        (an offline ride), without a method call per sample."""
+        pt, ph, ps = self._pt, self._ph, self._ps
+        wait = self._profile_wait if self._pending else math.inf
+        after = pt[-1] + _EPS_T if pt else -math.inf  # a stamp must be above this
+        isfinite = math.isfinite
+        i = start
+        while i < stop:
+            ti, si, hi = float(t[i]), float(distance[i]), float(elevation[i])
+            if not (after < ti < wait and isfinite(ti) and isfinite(si) and isfinite(hi)):
+                break
+            pt.append(ti)
+            ph.append(hi)
+            ps.append(si)
+            after = ti + _EPS_T
+            i += 1
+        if i > start:
+            self._last_distance = float(distance[i - 1])
+        return i
+
     def add_accelerations(
         self, t: float, body_specific_force_z: float, wheel_specific_force_z: float | None = None
     ) -> SoilStiffnessEstimate | None:

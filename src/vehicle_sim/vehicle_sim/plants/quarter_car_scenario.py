@@ -5,6 +5,7 @@ The plant: :mod:`vehicle_sim.plants.quarter_car`.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -82,8 +83,17 @@ class SpeedProfile:
         idx = np.searchsorted(self.times, t, side="right") - 1
         return np.clip(idx, 0, len(self.times) - 1)
 
+    def _scalar_segment(self, t: float) -> int:
+        """:meth:`_segment` of one time: the same knot (NaN, like numpy's sort order, after the last)."""
+        return max(bisect.bisect_right(self.times, t) - 1, 0)
+
     def speed(self, t: ArrayLike) -> NDArray[np.float64]:
         """v(t) (m/s); shape of ``t`` (s)."""
+        if isinstance(t, (float, int)) and not isinstance(t, bool):
+            # One time (the plant asks three times a step): the array form's arithmetic on floats, without its
+            # per-call conversions; a numpy float64 as the array form returns for a scalar.
+            i = self._scalar_segment(float(t))
+            return np.float64(self.speeds[i] + self._accel[i] * (float(t) - self.times[i]))
         t_arr = np.asarray(t, dtype=float)
         idx = self._segment(t_arr)
         dt = t_arr - np.asarray(self.times)[idx]
@@ -91,6 +101,10 @@ class SpeedProfile:
 
     def distance(self, t: ArrayLike) -> NDArray[np.float64]:
         """Distance travelled s(t) = ∫0^t v dt' (m), exact; shape of ``t`` (s)."""
+        if isinstance(t, (float, int)) and not isinstance(t, bool):
+            i = self._scalar_segment(float(t))
+            dt = float(t) - self.times[i]
+            return np.float64(self._cumulative[i] + self.speeds[i] * dt + 0.5 * self._accel[i] * dt * dt)
         t_arr = np.asarray(t, dtype=float)
         idx = self._segment(t_arr)
         dt = t_arr - np.asarray(self.times)[idx]
