@@ -381,38 +381,13 @@ class SoilStiffnessEstimator(ProfileRoad, FilterSteps):
             return None  # nothing queued, or the queued step still waits for the profile (see _process_pending)
         return self._process_pending()
 
-    def add_profile_run(self, stamps_ns: Sequence[int], values: Sequence[Sequence[float]], start: int) -> int:
-        """:meth:`add_profile_sample` of the samples from ``start`` on (t = stamp ns * 1e-9, distance and
-        elevation the first two of ``values[i]``), the same buffers and arithmetic, up to the first one it
-        would reject or that may complete a queued step: that one's index (not taken), else ``len(stamps_ns)``.
-        """
-        pt, ph, ps = self._pt, self._ph, self._ps
-        wait = self._profile_wait if self._pending else math.inf
-        after = pt[-1] + _EPS_T if pt else -math.inf  # a stamp must be above this
-        isfinite = math.isfinite
-        i, n = start, len(stamps_ns)
-        while i < n:
-            t = float(stamps_ns[i] * 1e-9)
-            v = values[i]
-            s, h = float(v[0]), float(v[1])
-            if not (after < t < wait and isfinite(t) and isfinite(s) and isfinite(h)):
-                break
-            pt.append(t)
-            ph.append(h)
-            ps.append(s)
-            after = t + _EPS_T
-            i += 1
-        if i > start:
-            self._last_distance = float(values[i - 1][0])
-        return i
-
     def add_profile_samples(
         self, t: Sequence[float], distance: Sequence[float], elevation: Sequence[float], start: int, stop: int
     ) -> int:
         """:meth:`add_profile_sample` of the samples ``start`` … ``stop − 1`` (stamps in s), the same buffers and
         arithmetic, up to the first one it would reject or that may complete a queued step: that one's index (not
         taken; hand it to :meth:`add_profile_sample`), else ``stop``. For a caller holding the samples as lists
-        (an offline ride), without a method call per sample."""
+        (an offline ride, a bag's run of profile messages), without a method call per sample."""
         pt, ph, ps = self._pt, self._ph, self._ps
         wait = self._profile_wait if self._pending else math.inf
         after = pt[-1] + _EPS_T if pt else -math.inf  # a stamp must be above this

@@ -680,11 +680,14 @@ class SoilStiffnessAdapter:
 
     def handle_profile_run(self, stamps_ns: Sequence[int], values: Sequence[Sequence[float]]) -> list[tuple[int, Any]]:
         """:meth:`handle_profile` of each sample in turn (:attr:`field_runs`): (index, outputs) of those with
-        outputs. The samples that complete no step are appended together (``add_profile_run``)."""
+        outputs. The samples that complete no step are appended together (``add_profile_samples``)."""
         out: list[tuple[int, Any]] = []
-        i, n, append_run = 0, len(stamps_ns), self.estimator.add_profile_run
+        i, n, append_run = 0, len(stamps_ns), self.estimator.add_profile_samples
+        t = [stamp_ns * 1e-9 for stamp_ns in stamps_ns]  # as handle_profile converts each
+        distance = [v[0] for v in values]
+        elevation = [v[1] for v in values]
         while i < n:
-            i = append_run(stamps_ns, values, i)
+            i = append_run(t, distance, elevation, i, n)
             if i < n:
                 produced = self.handle_profile(stamps_ns[i], values[i])
                 if produced:
@@ -711,7 +714,7 @@ class SoilStiffnessAdapter:
     @property
     def field_runs(self) -> Mapping[str, Callable[[Sequence[int], Any], list[tuple[int, Any]]]]:
         """Input key -> the handler of a run of its samples (stamps, fields): the profile, unless profile-free."""
-        return {"profile": self.handle_profile_run} if hasattr(self.estimator, "add_profile_run") else {}
+        return {"profile": self.handle_profile_run} if hasattr(self.estimator, "add_profile_samples") else {}
 
     def _outputs(self) -> list[tuple[str, Any]]:
         estimates = self._drain()
