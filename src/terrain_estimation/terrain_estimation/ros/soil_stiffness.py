@@ -684,8 +684,7 @@ class SoilStiffnessAdapter:
         out: list[tuple[int, Any]] = []
         i, n, append_run = 0, len(stamps_ns), self.estimator.add_profile_samples
         t = [stamp_ns * 1e-9 for stamp_ns in stamps_ns]  # as handle_profile converts each
-        distance = [v[0] for v in values]
-        elevation = [v[1] for v in values]
+        distance, elevation = [v[0] for v in values], [v[1] for v in values]
         while i < n:
             i = append_run(t, distance, elevation, i, n)
             if i < n:
